@@ -1,0 +1,177 @@
+"""Functional DQN pieces: Q-network (``dueling`` flag), TD loss (``double`` flag), replay buffer.
+
+With ``dueling=False`` and ``double=False`` this is the paper's "simple DQN"; with both on it is
+the paper's model (eq. 6 and 7 of the paper).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+
+class QNetwork(nn.Module):
+    """MLP Q-network; the paper's is 512-256-128-64 with dueling heads."""
+
+    num_actions: int
+    hidden_sizes: Sequence[int] = (512, 256, 128, 64)
+    dueling: bool = True
+
+    @nn.compact
+    def __call__(self, obs: jax.Array) -> jax.Array:
+        x = obs
+        for width in self.hidden_sizes:
+            x = nn.relu(nn.Dense(width)(x))
+        if not self.dueling:
+            return nn.Dense(self.num_actions)(x)
+        value = nn.Dense(1, name="value")(x)
+        advantage = nn.Dense(self.num_actions, name="advantage")(x)
+        # eq. 7: Q = V + (A - mean_a A), which makes V and A identifiable
+        return value + advantage - advantage.mean(axis=-1, keepdims=True)
+
+
+# ---------------------------------------------------------------------------- replay
+@struct.dataclass
+class ReplayBuffer:
+    """Circular buffer laid out [time, env], so n-step returns read consecutive rows.
+
+    ``next_obs`` holds the observation after the transition; at an episode end it is the
+    final observation (not the reset one), so truncated transitions bootstrap correctly.
+    """
+
+    obs: jax.Array  # [T, N, D]
+    action: jax.Array  # [T, N]
+    reward: jax.Array  # [T, N]
+    next_obs: jax.Array  # [T, N, D]
+    terminated: jax.Array  # [T, N] bool: no bootstrap
+    done: jax.Array  # [T, N] bool: episode ended (terminated or truncated)
+    ptr: jax.Array  # next row to write
+    size: jax.Array  # rows filled
+
+    @property
+    def capacity(self) -> int:
+        return self.obs.shape[0]
+
+
+def buffer_init(capacity: int, num_envs: int, obs_size: int) -> ReplayBuffer:
+    f = lambda *s, d=jnp.float32: jnp.zeros((capacity, num_envs, *s), d)  # noqa: E731
+    return ReplayBuffer(
+        obs=f(obs_size),
+        action=f(d=jnp.int32),
+        reward=f(),
+        next_obs=f(obs_size),
+        terminated=f(d=bool),
+        done=f(d=bool),
+        ptr=jnp.zeros((), jnp.int32),
+        size=jnp.zeros((), jnp.int32),
+    )
+
+
+def buffer_add(
+    buf: ReplayBuffer,
+    obs: jax.Array,
+    action: jax.Array,
+    reward: jax.Array,
+    next_obs: jax.Array,
+    terminated: jax.Array,
+    done: jax.Array,
+) -> ReplayBuffer:
+    """Write one row (one transition of every env) at ``ptr``, overwriting the oldest."""
+    i = buf.ptr
+    return buf.replace(
+        obs=buf.obs.at[i].set(obs),
+        action=buf.action.at[i].set(action),
+        reward=buf.reward.at[i].set(reward),
+        next_obs=buf.next_obs.at[i].set(next_obs),
+        terminated=buf.terminated.at[i].set(terminated),
+        done=buf.done.at[i].set(done),
+        ptr=(i + 1) % buf.capacity,
+        size=jnp.minimum(buf.size + 1, buf.capacity),
+    )
+
+
+@struct.dataclass
+class Batch:
+    obs: jax.Array
+    action: jax.Array
+    returns: jax.Array  # n-step discounted reward sum
+    bootstrap_obs: jax.Array
+    bootstrap_discount: jax.Array  # gamma^k, 0 after a terminal state
+
+
+def buffer_sample(
+    buf: ReplayBuffer, key: jax.Array, batch_size: int, n_step: int, gamma: jax.Array
+) -> Batch:
+    """Uniform sample of n-step transitions that do not straddle the write pointer.
+
+    Requires ``buf.size >= n_step``.
+    """
+    k_t, k_e = jax.random.split(key)
+    oldest = (buf.ptr - buf.size) % buf.capacity
+    j = jax.random.randint(k_t, (batch_size,), 0, buf.size - n_step + 1)
+    t = (oldest + j) % buf.capacity
+    e = jax.random.randint(k_e, (batch_size,), 0, buf.obs.shape[1])
+    returns = jnp.zeros(batch_size)
+    discount = jnp.ones(batch_size)
+    alive = jnp.ones(batch_size, bool)
+    last = t
+    boot = jnp.zeros(batch_size)
+    for k in range(n_step):  # n_step is small and static
+        idx = (t + k) % buf.capacity
+        returns = returns + jnp.where(alive, discount * buf.reward[idx, e], 0.0)
+        discount = discount * gamma
+        last = jnp.where(alive, idx, last)
+        boot = jnp.where(alive, discount * (1.0 - buf.terminated[idx, e]), boot)
+        alive = alive & ~buf.done[idx, e]
+    return Batch(
+        obs=buf.obs[t, e],
+        action=buf.action[t, e],
+        returns=returns,
+        bootstrap_obs=buf.next_obs[last, e],
+        bootstrap_discount=boot,
+    )
+
+
+# ---------------------------------------------------------------------------- loss
+def td_loss(
+    params,
+    target_params,
+    apply_fn,
+    batch: Batch,
+    double: bool,
+    loss_type: str = "huber",
+) -> tuple[jax.Array, dict[str, jax.Array]]:
+    """Mean TD loss of a batch and diagnostics.
+
+    Target: ``returns + bootstrap_discount * Q_target(s', a*)`` with ``a* = argmax Q_target(s')``
+    (simple DQN, eq. 5) or ``a* = argmax Q_online(s')`` (``double``, eq. 6).
+    """
+    b = batch.obs.shape[0]
+    if double:  # one forward pass of the online net over s and s'
+        q_both = apply_fn(params, jnp.concatenate([batch.obs, batch.bootstrap_obs]))
+        q, q_next_online = q_both[:b], q_both[b:]
+    else:
+        q = apply_fn(params, batch.obs)
+    q_next_target = apply_fn(target_params, batch.bootstrap_obs)
+    if double:
+        best = jnp.argmax(q_next_online, axis=-1)
+    else:
+        best = jnp.argmax(q_next_target, axis=-1)
+    next_value = jnp.take_along_axis(q_next_target, best[:, None], axis=-1)[:, 0]
+    target = jax.lax.stop_gradient(batch.returns + batch.bootstrap_discount * next_value)
+    q_taken = jnp.take_along_axis(q, batch.action[:, None], axis=-1)[:, 0]
+    td = q_taken - target
+    if loss_type == "huber":
+        per_sample = jnp.where(jnp.abs(td) <= 1.0, 0.5 * td**2, jnp.abs(td) - 0.5)
+    else:
+        per_sample = td**2
+    return per_sample.mean(), {"q_mean": q_taken.mean(), "q_max": jnp.abs(q).max()}
+
+
+def polyak(target_params, params, tau: jax.Array):
+    """``tau * params + (1 - tau) * target``; tau = 1 is a hard copy."""
+    return jax.tree.map(lambda t, p: tau * p + (1.0 - tau) * t, target_params, params)

@@ -1,0 +1,138 @@
+"""Training configuration: one frozen dataclass, validated before anything compiles."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+from jaxnav.registration import env_config
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainConfig:
+    """Defaults reproduce the paper's grid experiment (Sec. IV-A) on a laptop CPU.
+
+    Sizes count env steps (transitions of one env) unless named otherwise.
+    """
+
+    env: str = "GridMaze-v0"
+    env_kwargs: dict[str, Any] = dataclasses.field(default_factory=dict)
+    seed: int = 0
+    num_seeds: int = 1
+    total_timesteps: int = 480_000
+    num_envs: int = 16
+    # network and loss
+    hidden_sizes: tuple[int, ...] = (512, 256, 128, 64)
+    dueling: bool = True
+    double: bool = True
+    loss: str = "huber"
+    # replay
+    buffer_size: int = 100_000
+    batch_size: int = 128
+    learning_starts: int = 10_000
+    updates_per_iteration: int = 1  # gradient steps per vectorized env step (num_envs steps)
+    n_step: int = 3
+    # per-run hyperparameters (vmappable leaves of HParams)
+    gamma: float = 0.9
+    lr: float = 1e-3
+    lr_end: float = 1e-4
+    optimizer: str = "adam"
+    max_grad_norm: float = 10.0
+    target_update_period: int = 2_000
+    tau: float = 1.0
+    eps_start: float = 1.0
+    eps_end: float = 0.05
+    eps_decay_steps: int = 200_000
+    # bookkeeping
+    log_interval: int = 16_000
+    eval_episodes: int = 1000
+
+    @property
+    def iterations(self) -> int:
+        return self.num_logs * self.iterations_per_log
+
+    @property
+    def iterations_per_log(self) -> int:
+        return max(1, self.log_interval // self.num_envs)
+
+    @property
+    def num_logs(self) -> int:
+        return max(1, math.ceil(self.total_timesteps / (self.iterations_per_log * self.num_envs)))
+
+    @property
+    def buffer_rows(self) -> int:
+        return max(self.n_step, self.buffer_size // self.num_envs)
+
+    def validate(self) -> None:
+        """Raise ``ValueError`` naming the first bad value or combination."""
+        env_config(self.env, **self.env_kwargs)
+        ints = {
+            "seed": (0, 2**31 - 1),
+            "num_seeds": (1, 4096),
+            "total_timesteps": (1, 10**12),
+            "num_envs": (1, 2**24),
+            "buffer_size": (1, 10**9),
+            "batch_size": (1, 2**20),
+            "learning_starts": (0, 10**12),
+            "updates_per_iteration": (1, 1024),
+            "n_step": (1, 64),
+            "target_update_period": (1, 10**12),
+            "eps_decay_steps": (1, 10**12),
+            "log_interval": (1, 10**12),
+            "eval_episodes": (0, 10**7),
+        }
+        for name, (lo, hi) in ints.items():
+            v = getattr(self, name)
+            if not isinstance(v, int) or isinstance(v, bool) or not lo <= v <= hi:
+                raise ValueError(f"{name}={v!r}: must be an integer in [{lo}, {hi}]")
+        floats = {
+            "gamma": (0.0, 1.0),
+            "lr": (0.0, 10.0),
+            "lr_end": (0.0, 10.0),
+            "max_grad_norm": (0.0, 1e9),
+            "tau": (0.0, 1.0),
+            "eps_start": (0.0, 1.0),
+            "eps_end": (0.0, 1.0),
+        }
+        for name, (lo, hi) in floats.items():
+            v = getattr(self, name)
+            ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+            if not ok or not lo <= v <= hi:
+                raise ValueError(f"{name}={v!r}: must be a number in [{lo}, {hi}]")
+        if self.lr <= 0 or self.max_grad_norm <= 0 or self.tau <= 0:
+            bad = next(n for n in ("lr", "max_grad_norm", "tau") if getattr(self, n) <= 0)
+            raise ValueError(f"{bad}={getattr(self, bad)!r}: must be positive")
+        if not self.hidden_sizes or any(
+            not isinstance(h, int) or isinstance(h, bool) or not 1 <= h <= 65536
+            for h in self.hidden_sizes
+        ):
+            raise ValueError(
+                f"hidden_sizes={self.hidden_sizes!r}: must be one or more integers in [1, 65536]"
+            )
+        for name in ("dueling", "double"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"{name}={getattr(self, name)!r}: must be true or false")
+        if self.loss not in ("huber", "mse"):
+            raise ValueError(f"loss={self.loss!r}: must be one of huber, mse")
+        if self.optimizer not in ("adam", "sgd"):
+            raise ValueError(f"optimizer={self.optimizer!r}: must be one of adam, sgd")
+        if self.batch_size > self.buffer_size:
+            raise ValueError(
+                f"batch_size={self.batch_size} is larger than buffer_size={self.buffer_size}"
+            )
+        if self.buffer_size < self.num_envs * self.n_step:
+            raise ValueError(
+                f"buffer_size={self.buffer_size} must hold n_step={self.n_step} steps of "
+                f"num_envs={self.num_envs} envs (>= {self.num_envs * self.n_step})"
+            )
+        if self.learning_starts >= self.total_timesteps:
+            raise ValueError(
+                f"learning_starts={self.learning_starts} is not below "
+                f"total_timesteps={self.total_timesteps}: no update would ever run"
+            )
+        if self.learning_starts < self.num_envs * self.n_step:
+            raise ValueError(
+                f"learning_starts={self.learning_starts} must be at least num_envs * n_step = "
+                f"{self.num_envs * self.n_step} so the buffer holds a full n-step transition"
+            )

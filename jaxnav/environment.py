@@ -1,0 +1,98 @@
+"""Environment base class: gymnax-1.0-style API with auto-reset and time limits in one place.
+
+Subclasses implement ``reset_env`` (one fresh episode; keep it cheap, it runs on every
+step under ``vmap``) and ``step_env`` (dynamics without time limit or reset). The base
+class adds the time limit (``truncated``), auto-reset and ``info["final_observation"]``.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Generic, TypeVar
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from jaxnav import spaces
+
+
+@struct.dataclass
+class EnvState:
+    """Fields every environment state has; subclasses add their own."""
+
+    time: jax.Array  # steps taken in the current episode
+
+
+@struct.dataclass
+class EnvParams:
+    """Fields every environment's parameters have; subclasses add their own."""
+
+    max_steps_in_episode: int = 60
+
+
+StateT = TypeVar("StateT", bound=EnvState)
+ParamsT = TypeVar("ParamsT", bound=EnvParams)
+
+
+class Environment(Generic[StateT, ParamsT]):
+    """Stateless environment: all episode data lives in ``state``, all settings in ``params``."""
+
+    name: str = "Environment"
+
+    @property
+    def default_params(self) -> ParamsT:
+        raise NotImplementedError
+
+    @property
+    def num_actions(self) -> int:
+        raise NotImplementedError
+
+    def action_space(self, params: ParamsT | None = None) -> spaces.Discrete:
+        return spaces.Discrete(self.num_actions)
+
+    def observation_space(self, params: ParamsT | None = None) -> spaces.Box:
+        raise NotImplementedError
+
+    # -- subclass hooks -------------------------------------------------------------
+    def reset_env(self, key: jax.Array, params: ParamsT) -> tuple[jax.Array, StateT]:
+        raise NotImplementedError
+
+    def step_env(
+        self, key: jax.Array, state: StateT, action: jax.Array, params: ParamsT
+    ) -> tuple[jax.Array, StateT, jax.Array, jax.Array, dict[str, Any]]:
+        """One transition: ``(obs, state, reward, terminated, info)``; must advance ``time``."""
+        raise NotImplementedError
+
+    # -- public API -----------------------------------------------------------------
+    def reset(self, key: jax.Array, params: ParamsT | None = None) -> tuple[jax.Array, StateT]:
+        return self.reset_env(key, self.default_params if params is None else params)
+
+    def step(
+        self,
+        key: jax.Array,
+        state: StateT,
+        action: jax.Array,
+        params: ParamsT | None = None,
+    ) -> tuple[jax.Array, StateT, jax.Array, jax.Array, jax.Array, dict[str, Any]]:
+        """Step and auto-reset: returns ``(obs, state, reward, terminated, truncated, info)``.
+
+        When the episode ends, ``obs``/``state`` are those of a fresh episode and
+        ``info["final_observation"]`` holds the last observation of the finished one.
+        A time limit sets ``truncated`` only: it is not a terminal state for value targets.
+        """
+        params = self.default_params if params is None else params
+        key_step, key_reset = jax.random.split(key)
+        obs_step, state_step, reward, terminated, info = self.step_env(
+            key_step, state, action, params
+        )
+        terminated = jnp.asarray(terminated, dtype=bool)
+        truncated = jnp.logical_and(
+            state_step.time >= params.max_steps_in_episode, jnp.logical_not(terminated)
+        )
+        done = jnp.logical_or(terminated, truncated)
+        obs_reset, state_reset = self.reset_env(key_reset, params)
+        state = jax.tree.map(lambda r, s: jnp.where(done, r, s), state_reset, state_step)
+        obs = jnp.where(done, obs_reset, obs_step)
+        info = dict(info)
+        info["final_observation"] = obs_step
+        return obs, state, jnp.asarray(reward, jnp.float32), terminated, truncated, info

@@ -1,0 +1,392 @@
+"""GridMaze: the paper's discrete 2D experiment (Sec. IV-A), in pure JAX.
+
+A robot moves up/down/left/right on a square grid with obstacles and must reach a goal.
+Reward: ``goal_reward`` (+4) on reaching the goal, ``collision_reward`` (-1) for moving into
+an obstacle or off the grid (the robot stays put), ``step_reward`` (0) otherwise. Goal and
+collision terminate; the time limit (60 steps) truncates.
+
+Layouts live in a *bank* built once by ``make``: for each layout the free cells, a set of
+goal cells and the BFS distance field from each goal. A reset is then a handful of gathers
+(a random layout, goal and start), so auto-reset costs about as much as a step, and the
+shortest path of every episode is known for free (``info["shortest_path"]``).
+
+``GridMaze-v0`` has one layout (picked by ``layout_seed``) and uses every free cell as a goal.
+``GridMaze-Random-v0`` draws a layout from a bank of ``num_layouts`` per episode.
+
+Observation modes (all encode the paper's information: robot, goal and obstacle positions):
+
+- ``paper``: the literal encoding: robot (x, y), goal (x, y) and every obstacle's (x, y),
+  divided by ``size - 1``. Obstacle lists are padded to the bank's largest by repeating the
+  first obstacle (a duplicate adds no information).
+- ``onehot`` (default of GridMaze-v0, chosen by measurement, see README): one-hot robot row,
+  robot column, goal row and goal column, whether each of the 4 neighbours is blocked, and
+  the goal's offset (drow, dcol) / (size - 1). For a fixed layout the obstacle coordinates
+  are constants, so the network learns them from the rewards instead of reading them.
+- ``sensor`` (default of GridMaze-Random-v0): what a robot with range sensors would see:
+  the occupancy of the (2r+1)^2 window around the robot (off-grid counts as blocked), the
+  free distance along each of the 4 grid directions / (size - 1), and the goal's offset.
+  Coordinates of a changing obstacle set do not generalize in an MLP; local sensing does.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from jaxnav import spaces
+from jaxnav.environment import Environment, EnvParams, EnvState
+
+# (drow, dcol) of the actions up, down, left, right
+ACTION_NAMES = ("up", "down", "left", "right")
+MOVES = np.array([[-1, 0], [1, 0], [0, -1], [0, 1]], dtype=np.int32)
+OBS_MODES = ("onehot", "paper", "sensor")
+UNREACHABLE = -1
+
+
+@dataclasses.dataclass(frozen=True)
+class GridMazeConfig:
+    """Everything that defines a GridMaze; ``jaxnav.make(id, **overrides)`` replaces fields."""
+
+    size: int = 15
+    obstacle_density: float = 0.2
+    layout_seed: int = 0
+    random_layouts: bool = False
+    num_layouts: int = 1024  # bank size when random_layouts
+    goals_per_layout: int = 16  # goal cells per layout when random_layouts
+    obs_mode: str = "onehot"
+    sensor_radius: int = 2
+    max_steps: int = 60
+    goal_reward: float = 4.0
+    collision_reward: float = -1.0
+    step_reward: float = 0.0
+
+    def validate(self) -> None:
+        """Raise ``ValueError`` naming the first bad field."""
+        _check_int(self, "size", 2, 255)
+        _check_int(self, "layout_seed", 0, 2**32 - 1)
+        _check_int(self, "num_layouts", 1, 1_000_000)
+        _check_int(self, "goals_per_layout", 1, 1_000_000)
+        _check_int(self, "sensor_radius", 1, 64)
+        _check_int(self, "max_steps", 1, 1_000_000)
+        if not isinstance(self.random_layouts, bool):
+            raise ValueError(f"random_layouts={self.random_layouts!r}: must be true or false")
+        if self.obs_mode not in OBS_MODES:
+            raise ValueError(f"obs_mode={self.obs_mode!r}: must be one of {', '.join(OBS_MODES)}")
+        d = self.obstacle_density
+        if not _is_number(d) or not 0.0 <= d < 1.0:
+            raise ValueError(f"obstacle_density={d!r}: must be a number in [0, 1)")
+        if self.size * self.size - round(d * self.size * self.size) < 2:
+            raise ValueError(
+                f"obstacle_density={d!r}: more obstacles than a {self.size}x{self.size} grid "
+                "can hold with a free start and goal"
+            )
+        for name in ("goal_reward", "collision_reward", "step_reward"):
+            v = getattr(self, name)
+            if not _is_number(v) or not np.isfinite(v):
+                raise ValueError(f"{name}={v!r}: must be a finite number")
+
+
+def default_config() -> GridMazeConfig:
+    return GridMazeConfig()
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
+
+
+def _check_int(cfg: Any, name: str, lo: int, hi: int) -> None:
+    v = getattr(cfg, name)
+    if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or not lo <= v <= hi:
+        raise ValueError(f"{name}={v!r}: must be an integer in [{lo}, {hi}]")
+
+
+# ---------------------------------------------------------------------------- layouts
+@struct.dataclass
+class LayoutBank:
+    """Pre-generated layouts; every array has the layout index first."""
+
+    obstacles: jax.Array  # bool[L, S, S]
+    free_cells: jax.Array  # int32[L, F, 2] (row, col), padded with the first free cell
+    num_free: jax.Array  # int32[L]
+    goal_slots: jax.Array  # int32[L, P] indices into free_cells
+    goal_distance: jax.Array  # int16[L, P, S, S] BFS steps to the goal, -1 where unreachable
+    obstacle_cells: jax.Array  # int32[L, O, 2], padded by repeating the first obstacle
+
+    @property
+    def num_layouts(self) -> int:
+        return self.obstacles.shape[0]
+
+
+def generate_layouts(size: int, density: float, num: int, seed: int) -> np.ndarray:
+    """``num`` layouts with ``round(density * size^2)`` random obstacles each, then every free
+    cell outside the largest connected free region filled in, so that any two free cells are
+    connected (the density can rise slightly above the requested one)."""
+    rng = np.random.default_rng(seed)
+    cells = size * size
+    k = round(density * cells)
+    order = np.argsort(rng.random((num, cells)), axis=1)
+    obstacles = np.zeros((num, cells), dtype=bool)
+    np.put_along_axis(obstacles, order[:, :k], True, axis=1)
+    return _fill_pockets(obstacles.reshape(num, size, size))
+
+
+def _fill_pockets(obstacles: np.ndarray) -> np.ndarray:
+    num, h, w = obstacles.shape
+    free = ~obstacles
+    label = np.where(free, np.arange(1, h * w + 1).reshape(1, h, w), 0)
+    while True:  # propagate the largest cell label through each connected region
+        p = np.pad(label, ((0, 0), (1, 1), (1, 1)))
+        nb = np.maximum.reduce([label, p[:, :-2, 1:-1], p[:, 2:, 1:-1], p[:, 1:-1, :-2], p[:, 1:-1, 2:]])
+        new = np.where(free, nb, 0)
+        if np.array_equal(new, label):
+            break
+        label = new
+    flat = label.reshape(num, -1)
+    counts = np.zeros((num, h * w + 1), dtype=np.int64)
+    np.add.at(counts, (np.repeat(np.arange(num), h * w), flat.ravel()), 1)
+    counts[:, 0] = 0
+    largest = counts.argmax(axis=1)
+    return label != largest[:, None, None]
+
+
+def distance_field(obstacles: jax.Array, source: jax.Array) -> jax.Array:
+    """BFS steps from ``source`` (row, col) to every cell; -1 for obstacles and unreachable."""
+    h, w = obstacles.shape
+    far = h * w
+    free = jnp.logical_not(obstacles)
+    dist = jnp.full((h, w), far, jnp.int32).at[source[0], source[1]].set(0)
+    dist = jnp.where(free, dist, far)
+
+    def relax(carry):
+        d, _ = carry
+        p = jnp.pad(d, 1, constant_values=far)
+        nb = jnp.minimum(
+            jnp.minimum(p[:-2, 1:-1], p[2:, 1:-1]), jnp.minimum(p[1:-1, :-2], p[1:-1, 2:])
+        )
+        new = jnp.where(free, jnp.minimum(d, nb + 1), far)
+        return new, jnp.any(new != d)
+
+    dist, _ = jax.lax.while_loop(lambda c: c[1], relax, (dist, jnp.asarray(True)))
+    return jnp.where(dist >= far, UNREACHABLE, dist)
+
+
+def shortest_path_length(obstacles: jax.Array, start: jax.Array, goal: jax.Array) -> jax.Array:
+    """BFS length of the shortest path from ``start`` to ``goal``; -1 if there is none."""
+    return distance_field(obstacles, goal)[start[0], start[1]]
+
+
+@jax.jit
+def _bank_distances(obstacles: jax.Array, goals: jax.Array) -> jax.Array:
+    per_layout = jax.vmap(distance_field, in_axes=(None, 0))
+    return jax.vmap(per_layout)(obstacles, goals).astype(jnp.int16)
+
+
+def build_bank(cfg: GridMazeConfig) -> LayoutBank:
+    num = cfg.num_layouts if cfg.random_layouts else 1
+    obstacles = generate_layouts(cfg.size, cfg.obstacle_density, num, cfg.layout_seed)
+    cells = cfg.size * cfg.size
+    free_mask = ~obstacles.reshape(num, cells)
+    num_free = free_mask.sum(axis=1)
+    if num_free.min() < 2:
+        raise ValueError(
+            f"obstacle_density={cfg.obstacle_density!r}: layout_seed={cfg.layout_seed} leaves "
+            "fewer than 2 connected free cells; lower the density"
+        )
+    rc = np.stack(np.divmod(np.arange(cells), cfg.size), axis=1).astype(np.int32)
+    # free cells first (stable order), padded with the first free cell
+    order = np.argsort(~free_mask, axis=1, kind="stable")
+    fmax = int(num_free.max())
+    free_cells = rc[order[:, :fmax]]
+    free_cells = np.where(
+        (np.arange(fmax)[None, :] < num_free[:, None])[..., None], free_cells, free_cells[:, :1]
+    )
+    if cfg.random_layouts:
+        rng = np.random.default_rng(cfg.layout_seed + 1)
+        goal_slots = np.floor(
+            rng.random((num, cfg.goals_per_layout)) * num_free[:, None]
+        ).astype(np.int32)
+    else:
+        goal_slots = np.arange(fmax, dtype=np.int32)[None, :]  # every free cell is a goal
+    goals = np.take_along_axis(free_cells, goal_slots[..., None], axis=1)
+    dist = _bank_distances(jnp.asarray(obstacles), jnp.asarray(goals))
+    num_obs = (~free_mask).sum(axis=1)
+    omax = max(1, int(num_obs.max()))
+    order_o = np.argsort(free_mask, axis=1, kind="stable")[:, :omax]
+    obstacle_cells = rc[order_o]
+    obstacle_cells = np.where(
+        (np.arange(omax)[None, :] < num_obs[:, None])[..., None],
+        obstacle_cells,
+        obstacle_cells[:, :1],
+    )
+    return LayoutBank(
+        obstacles=jnp.asarray(obstacles),
+        free_cells=jnp.asarray(free_cells, jnp.int32),
+        num_free=jnp.asarray(num_free, jnp.int32),
+        goal_slots=jnp.asarray(goal_slots, jnp.int32),
+        goal_distance=dist,
+        obstacle_cells=jnp.asarray(obstacle_cells, jnp.int32),
+    )
+
+
+# ------------------------------------------------------------------------ environment
+@struct.dataclass
+class GridMazeState(EnvState):
+    pos: jax.Array  # int32[2] robot (row, col)
+    goal: jax.Array  # int32[2] goal (row, col)
+    layout: jax.Array  # int32 index into the bank
+    shortest_path: jax.Array  # int32 BFS length from the episode's start to the goal
+
+
+@struct.dataclass
+class GridMazeParams(EnvParams):
+    max_steps_in_episode: int = 60
+    goal_reward: float = 4.0
+    collision_reward: float = -1.0
+    step_reward: float = 0.0
+    bank: LayoutBank | None = None
+
+
+class GridMaze(Environment[GridMazeState, GridMazeParams]):
+    """Grid navigation to a goal among obstacles; see the module docstring."""
+
+    def __init__(self, config: GridMazeConfig | None = None, name: str = "GridMaze-v0"):
+        self.config = default_config() if config is None else config
+        self.config.validate()
+        self.name = name
+        self.size = self.config.size
+        self._bank = build_bank(self.config)
+
+    @property
+    def default_params(self) -> GridMazeParams:
+        c = self.config
+        return GridMazeParams(
+            max_steps_in_episode=c.max_steps,
+            goal_reward=c.goal_reward,
+            collision_reward=c.collision_reward,
+            step_reward=c.step_reward,
+            bank=self._bank,
+        )
+
+    @property
+    def num_actions(self) -> int:
+        return len(ACTION_NAMES)
+
+    def observation_space(self, params: GridMazeParams | None = None) -> spaces.Box:
+        return spaces.Box(-1.0, 1.0, (self.obs_size,), jnp.float32)
+
+    @property
+    def obs_size(self) -> int:
+        s, mode = self.size, self.config.obs_mode
+        if mode == "onehot":
+            return 4 * s + 4 + 2
+        if mode == "paper":
+            return 4 + 2 * self._bank.obstacle_cells.shape[1]
+        return (2 * self.config.sensor_radius + 1) ** 2 + 4 + 2
+
+    # -- episodes -----------------------------------------------------------------
+    def reset_env(self, key: jax.Array, params: GridMazeParams) -> tuple[jax.Array, GridMazeState]:
+        bank = params.bank
+        k_layout, k_goal, k_start = jax.random.split(key, 3)
+        layout = jax.random.randint(k_layout, (), 0, bank.num_layouts)
+        slot = jax.random.randint(k_goal, (), 0, bank.goal_slots.shape[1])
+        goal_idx = bank.goal_slots[layout, slot]
+        start_idx = jax.random.randint(k_start, (), 0, bank.num_free[layout] - 1)
+        start_idx = start_idx + (start_idx >= goal_idx)  # any free cell but the goal's
+        start = bank.free_cells[layout, start_idx]
+        goal = bank.free_cells[layout, goal_idx]
+        shortest = bank.goal_distance[layout, slot, start[0], start[1]].astype(jnp.int32)
+        return self._start(start, goal, layout, shortest, params)
+
+    def reset_to(
+        self,
+        key: jax.Array,
+        params: GridMazeParams,
+        start: jax.Array,
+        goal: jax.Array,
+        layout: jax.Array | int = 0,
+    ) -> tuple[jax.Array, GridMazeState]:
+        """Start an episode at a given start and goal cell (row, col) in bank layout ``layout``,
+        for fixed test suites. The shortest path is computed by BFS (-1 if unreachable)."""
+        del key  # deterministic; kept for a uniform signature
+        start = jnp.asarray(start, jnp.int32)
+        goal = jnp.asarray(goal, jnp.int32)
+        layout = jnp.asarray(layout, jnp.int32)
+        obstacles = params.bank.obstacles[layout]
+        shortest = shortest_path_length(obstacles, start, goal)
+        return self._start(start, goal, layout, shortest, params)
+
+    def _start(self, start, goal, layout, shortest, params):
+        state = GridMazeState(
+            time=jnp.zeros((), jnp.int32),
+            pos=start,
+            goal=goal,
+            layout=layout,
+            shortest_path=jnp.asarray(shortest, jnp.int32),
+        )
+        return self.get_obs(state, params), state
+
+    def step_env(self, key, state: GridMazeState, action, params: GridMazeParams):
+        obstacles = params.bank.obstacles[state.layout]
+        target = state.pos + jnp.asarray(MOVES)[action]
+        blocked = self._blocked(obstacles, target)
+        pos = jnp.where(blocked, state.pos, target)
+        at_goal = jnp.logical_and(jnp.all(pos == state.goal), jnp.logical_not(blocked))
+        r_goal = jnp.where(at_goal, params.goal_reward, 0.0)
+        r_collision = jnp.where(blocked, params.collision_reward, 0.0)
+        r_step = jnp.where(blocked | at_goal, 0.0, params.step_reward)
+        state = state.replace(pos=pos, time=state.time + 1)
+        info = {
+            "goal_reached": at_goal,
+            "collision": blocked,
+            "shortest_path": state.shortest_path,
+            "reward_goal": r_goal,
+            "reward_collision": r_collision,
+            "reward_step": r_step,
+        }
+        reward = r_goal + r_collision + r_step
+        return self.get_obs(state, params), state, reward, at_goal | blocked, info
+
+    # -- observation --------------------------------------------------------------
+    def _blocked(self, obstacles: jax.Array, cell: jax.Array) -> jax.Array:
+        """Whether ``cell`` (..., 2) is off the grid or an obstacle."""
+        inside = jnp.all((cell >= 0) & (cell < self.size), axis=-1)
+        clipped = jnp.clip(cell, 0, self.size - 1)
+        return jnp.logical_or(~inside, obstacles[clipped[..., 0], clipped[..., 1]])
+
+    def get_obs(self, state: GridMazeState, params: GridMazeParams) -> jax.Array:
+        s, mode = self.size, self.config.obs_mode
+        scale = 1.0 / max(s - 1, 1)
+        obstacles = params.bank.obstacles[state.layout]
+        offset = (state.goal - state.pos).astype(jnp.float32) * scale
+        if mode == "paper":
+            xy = lambda rc: rc[..., ::-1].astype(jnp.float32) * scale  # noqa: E731
+            obs_cells = params.bank.obstacle_cells[state.layout]
+            return jnp.concatenate([xy(state.pos), xy(state.goal), xy(obs_cells).ravel()])
+        if mode == "onehot":
+            neighbours = self._blocked(obstacles, state.pos + jnp.asarray(MOVES))
+            return jnp.concatenate(
+                [
+                    jax.nn.one_hot(state.pos[0], s),
+                    jax.nn.one_hot(state.pos[1], s),
+                    jax.nn.one_hot(state.goal[0], s),
+                    jax.nn.one_hot(state.goal[1], s),
+                    neighbours.astype(jnp.float32),
+                    offset,
+                ]
+            )
+        r = self.config.sensor_radius
+        d = np.arange(-r, r + 1, dtype=np.int32)
+        window = np.stack(np.meshgrid(d, d, indexing="ij"), axis=-1).reshape(-1, 2)
+        occupancy = self._blocked(obstacles, state.pos + jnp.asarray(window))
+        steps = np.arange(1, s, dtype=np.int32)
+        rays = MOVES[:, None, :] * steps[None, :, None]  # [4, s-1, 2]
+        hit = self._blocked(obstacles, state.pos + jnp.asarray(rays))
+        free_run = jnp.argmax(jnp.concatenate([hit, jnp.ones((4, 1), bool)], axis=1), axis=1)
+        return jnp.concatenate(
+            [occupancy.astype(jnp.float32), free_run.astype(jnp.float32) * scale, offset]
+        )

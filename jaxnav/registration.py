@@ -1,0 +1,51 @@
+"""Environment ids and ``make``."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Callable
+
+from jaxnav.environment import Environment, EnvParams
+from jaxnav.envs import grid_maze
+
+# id -> (environment class, its default_config(), overrides that define the id)
+_REGISTRY: dict[str, tuple[Callable[..., Environment], Callable[[], Any], dict[str, Any]]] = {
+    "GridMaze-v0": (grid_maze.GridMaze, grid_maze.default_config, {}),
+    "GridMaze-Random-v0": (
+        grid_maze.GridMaze,
+        grid_maze.default_config,
+        {"random_layouts": True, "obs_mode": "sensor"},
+    ),
+}
+
+
+def registered_envs() -> list[str]:
+    """The ids ``make`` accepts."""
+    return list(_REGISTRY)
+
+
+def env_config(env_id: str, **overrides: Any) -> Any:
+    """The validated config ``make(env_id, **overrides)`` would build, without building it."""
+    if env_id not in _REGISTRY:
+        raise ValueError(
+            f"unknown env id {env_id!r}; valid ids: {', '.join(registered_envs())}"
+        )
+    _, default_config, id_overrides = _REGISTRY[env_id]
+    config = dataclasses.replace(default_config(), **id_overrides)
+    valid = [f.name for f in dataclasses.fields(config)]
+    for name in overrides:
+        if name not in valid:
+            raise ValueError(
+                f"unknown override {name!r} for {env_id}; valid overrides: {', '.join(valid)}"
+            )
+    config = dataclasses.replace(config, **overrides)
+    config.validate()
+    return config
+
+
+def make(env_id: str, **overrides: Any) -> tuple[Environment, EnvParams]:
+    """``env, params = make("GridMaze-v0", size=11)``; raises ``ValueError`` on a bad id or value."""
+    env_cls = _REGISTRY[env_id][0] if env_id in _REGISTRY else None
+    config = env_config(env_id, **overrides)
+    env = env_cls(config, name=env_id)
+    return env, env.default_params

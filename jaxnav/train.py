@@ -1,0 +1,260 @@
+"""DQN training as one pure function: ``train = make_train(config); state, metrics = train(key)``.
+
+The whole run is a ``jax.lax.scan`` over logging intervals, each a scan over iterations (one
+vectorized env step of ``num_envs`` envs plus ``updates_per_iteration`` gradient steps). The
+same compiled interval runs a whole training or a chunk of one (``Trainer.run``), so a run cut
+into chunks for checkpoints computes exactly what an uncut one does. ``jit(vmap(train))``
+trains several seeds (and several hyperparameter settings: ``HParams`` are pytree leaves) at once.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from functools import partial
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import optax
+from flax import struct
+
+from jaxnav.agents import dqn
+from jaxnav.config import TrainConfig
+from jaxnav.registration import make
+
+METRIC_NAMES = (
+    "env_steps",
+    "episodes",
+    "mean_return",
+    "success_rate",
+    "collision_rate",
+    "mean_length",
+    "loss",
+    "q_mean",
+    "epsilon",
+    "lr",
+)
+
+
+@struct.dataclass
+class HParams:
+    """Hyperparameters that may differ between runs of one compiled program (vmappable)."""
+
+    gamma: jax.Array
+    lr: jax.Array
+    lr_end: jax.Array
+    max_grad_norm: jax.Array
+    target_update_period: jax.Array
+    tau: jax.Array
+    eps_start: jax.Array
+    eps_end: jax.Array
+    eps_decay_steps: jax.Array
+
+    @classmethod
+    def from_config(cls, config: TrainConfig) -> HParams:
+        names = [f.name for f in cls.__dataclass_fields__.values()]
+        return cls(**{n: jnp.asarray(getattr(config, n), jnp.float32) for n in names})
+
+
+@struct.dataclass
+class TrainState:
+    params: Any
+    target_params: Any
+    opt_state: Any
+    buffer: dqn.ReplayBuffer
+    env_state: Any
+    obs: jax.Array  # [N, D]
+    episode_return: jax.Array  # [N] running return of each env's current episode
+    episode_length: jax.Array  # [N]
+    key: jax.Array
+    hparams: HParams
+
+
+class Trainer:
+    """Builds the environment, network and the compiled pieces of a training run."""
+
+    def __init__(
+        self,
+        config: TrainConfig,
+        progress: Callable[[dict[str, Any]], None] | None = None,
+    ):
+        config.validate()
+        self.config = config
+        self.env, self.env_params = make(config.env, **config.env_kwargs)
+        self.network = dqn.QNetwork(
+            num_actions=self.env.num_actions,
+            hidden_sizes=tuple(config.hidden_sizes),
+            dueling=config.dueling,
+        )
+        self.obs_size = self.env.observation_space(self.env_params).shape[0]
+        self.progress = progress
+
+    # -- pieces ---------------------------------------------------------------------
+    def default_hparams(self) -> HParams:
+        return HParams.from_config(self.config)
+
+    @property
+    def total_updates(self) -> int:
+        c = self.config
+        learning_iterations = c.iterations - min(c.iterations, c.learning_starts // c.num_envs)
+        return max(1, learning_iterations * c.updates_per_iteration)
+
+    def learning_rate(self, hp: HParams, updates: jax.Array) -> jax.Array:
+        """Linear decay from ``lr`` to ``lr_end`` over the run's gradient steps."""
+        return hp.lr + (hp.lr_end - hp.lr) * jnp.minimum(updates / self.total_updates, 1.0)
+
+    def _optimizer(self, hp: HParams) -> optax.GradientTransformation:
+        schedule = partial(self.learning_rate, hp)
+        opt = optax.adam(schedule) if self.config.optimizer == "adam" else optax.sgd(schedule)
+        return optax.chain(optax.clip_by_global_norm(hp.max_grad_norm), opt)
+
+    def init(self, key: jax.Array, hparams: HParams | None = None) -> TrainState:
+        """A fresh training state; ``key`` alone decides every random choice of the run."""
+        c = self.config
+        hp = self.default_hparams() if hparams is None else hparams
+        k_net, k_env, k_run = jax.random.split(key, 3)
+        params = self.network.init(k_net, jnp.zeros((1, self.obs_size)))
+        obs, env_state = jax.vmap(self.env.reset, in_axes=(0, None))(
+            jax.random.split(k_env, c.num_envs), self.env_params
+        )
+        return TrainState(
+            params=params,
+            target_params=params,
+            opt_state=self._optimizer(hp).init(params),
+            buffer=dqn.buffer_init(c.buffer_rows, c.num_envs, self.obs_size),
+            env_state=env_state,
+            obs=obs,
+            episode_return=jnp.zeros(c.num_envs),
+            episode_length=jnp.zeros(c.num_envs, jnp.int32),
+            key=k_run,
+            hparams=hp,
+        )
+
+    def epsilon(self, hp: HParams, env_steps: jax.Array) -> jax.Array:
+        frac = jnp.clip(1.0 - env_steps / hp.eps_decay_steps, 0.0, 1.0)
+        return hp.eps_end + (hp.eps_start - hp.eps_end) * frac
+
+    def _update(self, ts: TrainState, key: jax.Array) -> tuple[TrainState, dict]:
+        c, hp = self.config, ts.hparams
+        batch = dqn.buffer_sample(ts.buffer, key, c.batch_size, c.n_step, hp.gamma)
+
+        def loss_fn(params):
+            return dqn.td_loss(
+                params, ts.target_params, self.network.apply, batch, c.double, c.loss
+            )
+
+        (loss, aux), grads = jax.value_and_grad(loss_fn, has_aux=True)(ts.params)
+        updates, opt_state = self._optimizer(hp).update(grads, ts.opt_state, ts.params)
+        params = optax.apply_updates(ts.params, updates)
+        return ts.replace(params=params, opt_state=opt_state), {"loss": loss, **aux}
+
+    def _iteration(self, ts: TrainState, it: jax.Array) -> tuple[TrainState, dict]:
+        """One vectorized env step, then gradient steps once ``learning_starts`` is passed.
+
+        ``it`` (the global iteration) comes from the scan, not the state, so it is unbatched
+        under ``vmap`` and the ``cond`` below skips the updates for real during warm-up.
+        """
+        c, hp = self.config, ts.hparams
+        key, k_act, k_eps, k_step, k_upd = jax.random.split(ts.key, 5)
+        env_steps = it * c.num_envs
+        learning = env_steps >= c.learning_starts
+        eps = jnp.where(learning, self.epsilon(hp, env_steps), 1.0)
+        q = self.network.apply(ts.params, ts.obs)
+        explore = jax.random.uniform(k_eps, (c.num_envs,)) < eps
+        random_action = jax.random.randint(k_act, (c.num_envs,), 0, self.env.num_actions)
+        action = jnp.where(explore, random_action, jnp.argmax(q, axis=-1))
+        obs, env_state, reward, terminated, truncated, info = jax.vmap(
+            self.env.step, in_axes=(0, 0, 0, None)
+        )(jax.random.split(k_step, c.num_envs), ts.env_state, action, self.env_params)
+        done = terminated | truncated
+        buffer = dqn.buffer_add(
+            ts.buffer, ts.obs, action, reward, info["final_observation"], terminated, done
+        )
+        ep_return = ts.episode_return + reward
+        ep_length = ts.episode_length + 1
+        stats = {
+            "episodes": done.sum(),
+            "return_sum": jnp.where(done, ep_return, 0.0).sum(),
+            "length_sum": jnp.where(done, ep_length, 0).sum(),
+            "successes": (done & info["goal_reached"]).sum(),
+            "collisions": (done & info["collision"]).sum(),
+        }
+        ts = ts.replace(
+            buffer=buffer,
+            env_state=env_state,
+            obs=obs,
+            episode_return=jnp.where(done, 0.0, ep_return),
+            episode_length=jnp.where(done, 0, ep_length),
+            key=key,
+        )
+
+        def updates(ts):
+            ts, aux = jax.lax.scan(
+                self._update, ts, jax.random.split(k_upd, c.updates_per_iteration)
+            )
+            return ts, jax.tree.map(jnp.mean, aux) | {"updated": jnp.ones((), jnp.int32)}
+
+        def no_updates(ts):
+            zero = jnp.zeros(())
+            return ts, {"loss": zero, "q_mean": zero, "q_max": zero, "updated": jnp.zeros((), jnp.int32)}
+
+        ts, aux = jax.lax.cond(learning, updates, no_updates, ts)
+        # target network: copy when env steps cross a multiple of the period (rejax-style)
+        before = jnp.floor(env_steps / hp.target_update_period)
+        after = jnp.floor((env_steps + c.num_envs) / hp.target_update_period)
+        new_target = dqn.polyak(ts.target_params, ts.params, hp.tau)
+        crossed = learning & (after > before)
+        target = jax.tree.map(lambda n, o: jnp.where(crossed, n, o), new_target, ts.target_params)
+        ts = ts.replace(target_params=target)
+        stats |= {"loss_sum": aux["loss"] * aux["updated"], "q_sum": aux["q_mean"] * aux["updated"], "updated": aux["updated"]}
+        return ts, stats
+
+    def _log_interval(self, ts: TrainState, log_index: jax.Array) -> tuple[TrainState, dict]:
+        c = self.config
+        first = log_index * c.iterations_per_log
+        its = first + jnp.arange(c.iterations_per_log)
+        ts, stats = jax.lax.scan(self._iteration, ts, its)
+        s = jax.tree.map(lambda x: x.sum(), stats)
+        episodes = jnp.maximum(s["episodes"], 1)
+        updated = jnp.maximum(s["updated"], 1)
+        env_steps = (first + c.iterations_per_log) * c.num_envs
+        updates_done = jnp.maximum(0, its[-1] + 1 - c.learning_starts // c.num_envs)
+        metrics = {
+            "env_steps": env_steps,
+            "episodes": s["episodes"],
+            "mean_return": s["return_sum"] / episodes,
+            "success_rate": s["successes"] / episodes,
+            "collision_rate": s["collisions"] / episodes,
+            "mean_length": s["length_sum"] / episodes,
+            "loss": s["loss_sum"] / updated,
+            "q_mean": s["q_sum"] / updated,
+            "epsilon": self.epsilon(ts.hparams, env_steps),
+            "lr": self.learning_rate(ts.hparams, updates_done * c.updates_per_iteration),
+        }
+        if self.progress is not None:
+            jax.debug.callback(self.progress, metrics)
+        return ts, metrics
+
+    # -- whole runs -----------------------------------------------------------------
+    def run(self, ts: TrainState, first_log: int | jax.Array, num_logs: int) -> tuple[TrainState, dict]:
+        """``num_logs`` logging intervals starting at interval ``first_log``; metrics stacked."""
+        logs = jnp.asarray(first_log) + jnp.arange(num_logs)
+        return jax.lax.scan(self._log_interval, ts, logs)
+
+    def train(self, key: jax.Array, hparams: HParams | None = None) -> tuple[TrainState, dict]:
+        return self.run(self.init(key, hparams), 0, self.config.num_logs)
+
+    def greedy_policy(self, params) -> Callable[[jax.Array, jax.Array], jax.Array]:
+        return lambda key, obs: jnp.argmax(self.network.apply(params, obs), axis=-1)
+
+
+def make_train(
+    config: TrainConfig, progress: Callable[[dict[str, Any]], None] | None = None
+) -> Callable[..., tuple[TrainState, dict]]:
+    """PureJaxRL-style: ``train(key, hparams=None) -> (final TrainState, metrics per log)``."""
+    return Trainer(config, progress).train
+
+
+@partial(jax.jit, static_argnums=(0, 3))
+def _run_seeds(trainer: Trainer, ts: TrainState, first_log, num_logs: int):
+    return jax.vmap(trainer.run, in_axes=(0, None, None))(ts, first_log, num_logs)
