@@ -1,0 +1,251 @@
+"""Environment throughput: env steps/s of ``jax.lax.scan`` over ``vmap(env.step)``.
+
+    python -m benchmarks.env_throughput [--num-envs 1,16,256,4096,16384] [--steps N]
+        [--out benchmarks/results/env_throughput.json] [--envs NAME,NAME,...]
+
+Each (env, num_envs) row jits one function that scans ``--steps`` steps of the vmapped step
+with uniformly random actions (per-step action and key sampling included in the timing).
+The scan carries the observation and sums the reward, so XLA cannot drop the observation
+computation. "compile s" is trace + lower + XLA compile (``jit(f).lower(...).compile()``);
+steps/s uses the median of 3 runs of the compiled function after compilation.
+
+Rows: ``GridMaze-v0``, ``GridMaze-Random-v0`` (auto-reset ``env.step``), ``GridMaze-v0
+step_env only`` (no time limit, no auto-reset: the cost of auto-reset is its ratio to
+GridMaze-v0) and, when ``import gymnax`` works, gymnax's ``FourRooms-misc`` and
+``MetaMaze-misc`` through gymnax's own ``make`` and auto-resetting ``step`` (5-tuple).
+The ratio column compares with gymnax FourRooms-misc at the same num_envs when it was
+measured in the same run, otherwise with GridMaze-v0.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import importlib.metadata
+import json
+import os
+import platform
+import statistics
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+
+import jaxnav
+
+# (key, state, action) -> (obs, state, reward); one environment, vmapped by the benchmark
+StepFn = Callable[[jax.Array, Any, jax.Array], tuple[jax.Array, Any, jax.Array]]
+ResetFn = Callable[[jax.Array], tuple[jax.Array, Any]]
+
+STEP_ENV_ONLY = "GridMaze-v0 step_env only"
+OUR_ENVS = ("GridMaze-v0", "GridMaze-Random-v0", STEP_ENV_ONLY)
+GYMNAX_ENVS = ("FourRooms-misc", "MetaMaze-misc")
+ALL_ENVS = OUR_ENVS + GYMNAX_ENVS
+DEFAULT_OUT = Path("benchmarks/results/env_throughput.json")
+
+
+def build(name: str) -> tuple[ResetFn, StepFn, int]:
+    """``(reset, step, num_actions)`` for one row name; gymnax rows import gymnax here."""
+    if name in GYMNAX_ENVS:
+        import gymnax  # bench extra; may be absent
+
+        genv, gparams = gymnax.make(name)
+
+        def gstep(key: jax.Array, state: Any, action: jax.Array) -> Any:
+            obs, state, reward, _done, _info = genv.step(key, state, action, gparams)
+            return obs, state, reward
+
+        return (lambda k: genv.reset(k, gparams)), gstep, genv.num_actions
+    env, params = jaxnav.make("GridMaze-v0" if name == STEP_ENV_ONLY else name)
+    if name == STEP_ENV_ONLY:
+
+        def step(key: jax.Array, state: Any, action: jax.Array) -> Any:
+            obs, state, reward, _terminated, _info = env.step_env(key, state, action, params)
+            return obs, state, reward
+    else:
+
+        def step(key: jax.Array, state: Any, action: jax.Array) -> Any:
+            obs, state, reward, _terminated, _truncated, _info = env.step(
+                key, state, action, params
+            )
+            return obs, state, reward
+
+    return (lambda k: env.reset(k, params)), step, env.num_actions
+
+
+def measure(name: str, num_envs: int, steps: int, seed: int = 0) -> dict[str, Any]:
+    """Compile and time one row; returns its JSON record."""
+    reset, step, num_actions = build(name)
+    vstep = jax.vmap(step)
+
+    def rollout(key: jax.Array, obs: jax.Array, state: Any) -> tuple[jax.Array, Any, jax.Array]:
+        def body(carry: Any, key: jax.Array) -> tuple[Any, None]:
+            obs, state, total = carry
+            k_act, k_step = jax.random.split(key)
+            actions = jax.random.randint(k_act, (num_envs,), 0, num_actions)
+            obs, state, reward = vstep(jax.random.split(k_step, num_envs), state, actions)
+            return (obs, state, total + reward.astype(jnp.float32).sum()), None
+
+        init = (obs, state, jnp.zeros((), jnp.float32))
+        return jax.lax.scan(body, init, jax.random.split(key, steps))[0]
+
+    k_reset, k_run = jax.random.split(jax.random.key(seed))
+    obs, state = jax.block_until_ready(
+        jax.jit(jax.vmap(reset))(jax.random.split(k_reset, num_envs))
+    )
+    t0 = time.perf_counter()
+    compiled = jax.jit(rollout).lower(k_run, obs, state).compile()
+    compile_s = time.perf_counter() - t0
+    run_s = []
+    for _ in range(3):
+        t0 = time.perf_counter()
+        jax.block_until_ready(compiled(k_run, obs, state))
+        run_s.append(time.perf_counter() - t0)
+    median = statistics.median(run_s)
+    return {
+        "env": name,
+        "num_envs": num_envs,
+        "steps": steps,
+        "compile_s": compile_s,
+        "run_s": run_s,
+        "steps_per_s": num_envs * steps / median,
+    }
+
+
+def add_ratios(rows: list[dict[str, Any]]) -> None:
+    """Set ``baseline`` and ``ratio`` (steps/s over the baseline's) on every row."""
+    by_key = {(r["env"], r["num_envs"]): r for r in rows}
+    for r in rows:
+        base = next(
+            (
+                by_key[(b, r["num_envs"])]
+                for b in ("FourRooms-misc", "GridMaze-v0")
+                if (b, r["num_envs"]) in by_key
+            ),
+            None,
+        )
+        r["baseline"] = None if base is None else base["env"]
+        r["ratio"] = None if base is None else r["steps_per_s"] / base["steps_per_s"]
+
+
+def autoreset_cost(rows: list[dict[str, Any]]) -> dict[int, float]:
+    """num_envs -> steps/s of step_env only over GridMaze-v0's (how much auto-reset costs)."""
+    sps = {(r["env"], r["num_envs"]): r["steps_per_s"] for r in rows}
+    return {
+        n: sps[(STEP_ENV_ONLY, n)] / sps[("GridMaze-v0", n)]
+        for (e, n) in sps
+        if e == STEP_ENV_ONLY and ("GridMaze-v0", n) in sps
+    }
+
+
+def table(rows: list[dict[str, Any]]) -> str:
+    lines = [
+        "| env | num_envs | compile s | steps/s | ratio | baseline |",
+        "|---|---:|---:|---:|---:|---|",
+    ]
+    for r in rows:
+        ratio = "-" if r["ratio"] is None else f"{r['ratio']:.2f}"
+        lines.append(
+            f"| {r['env']} | {r['num_envs']} | {r['compile_s']:.2f} | "
+            f"{r['steps_per_s']:,.0f} | {ratio} | {r['baseline'] or '-'} |"
+        )
+    return "\n".join(lines)
+
+
+def machine_info() -> dict[str, Any]:
+    return {
+        "platform": platform.platform(),
+        "python": platform.python_version(),
+        "cpu_count": os.cpu_count(),
+        "jax_version": jax.__version__,
+        "backend": jax.default_backend(),
+        "devices": [str(d) for d in jax.devices()],
+        "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        "loadavg_1m_at_start": os.getloadavg()[0] if hasattr(os, "getloadavg") else None,
+        "gymnax_version": _version("gymnax"),
+    }
+
+
+def _version(dist: str) -> str | None:
+    try:
+        return importlib.metadata.version(dist)
+    except importlib.metadata.PackageNotFoundError:
+        return None
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--num-envs", default="1,16,256,4096,16384", help="comma-separated")
+    p.add_argument("--steps", type=int, default=200, help="scan length per row")
+    p.add_argument("--out", type=Path, default=DEFAULT_OUT, help="JSON output path")
+    p.add_argument("--envs", default=",".join(ALL_ENVS), help=f"comma-separated of {ALL_ENVS}")
+    args = p.parse_args(argv)
+    args.num_envs = [int(n) for n in args.num_envs.split(",")]
+    args.envs = [e.strip() for e in args.envs.split(",") if e.strip()]
+    unknown = [e for e in args.envs if e not in ALL_ENVS]
+    if unknown or args.steps < 1 or min(args.num_envs) < 1:
+        p.error(f"unknown envs {unknown} (valid: {ALL_ENVS}), or steps/num_envs < 1")
+    return args
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    """Run the benchmark, print the table, write the JSON (and a .md table next to it)."""
+    args = parse_args(argv)
+    info = machine_info()
+    envs, skipped = list(args.envs), {}
+    gymnax_wanted = [e for e in envs if e in GYMNAX_ENVS]
+    if gymnax_wanted:
+        try:
+            import gymnax  # noqa: F401
+        except ImportError as e:
+            print(f"note: gymnax not importable ({e}); skipping {', '.join(gymnax_wanted)}")
+            skipped = {g: f"import gymnax failed: {e}" for g in gymnax_wanted}
+            envs = [e for e in envs if e not in GYMNAX_ENVS]
+    rows = []
+    for n in args.num_envs:
+        for name in envs:
+            if name in skipped:
+                continue
+            try:
+                row = measure(name, n, args.steps)
+            except Exception as e:  # a gymnax that imports but breaks on this jax
+                if name not in GYMNAX_ENVS:
+                    raise
+                print(f"note: {name} failed ({type(e).__name__}: {e}); skipping it")
+                skipped[name] = f"{type(e).__name__}: {e}"
+                continue
+            print(
+                f"{name:28s} {n:6d} envs: compile {row['compile_s']:6.2f} s, "
+                f"{row['steps_per_s']:14,.0f} steps/s",
+                file=sys.stderr,
+            )
+            rows.append(row)
+    add_ratios(rows)
+    info["loadavg_1m_at_end"] = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
+    md = table(rows)
+    cost = autoreset_cost(rows)
+    if cost:
+        md += "\n\nAuto-reset cost (steps/s of step_env only / GridMaze-v0): " + ", ".join(
+            f"{n} envs {c:.2f}x" for n, c in cost.items()
+        )
+    print(md)
+    result = {
+        "machine": info,
+        "steps": args.steps,
+        "num_envs": args.num_envs,
+        "skipped": skipped,
+        "results": rows,
+        "autoreset_cost": {str(n): c for n, c in cost.items()},
+    }
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(result, indent=2) + "\n")
+    args.out.with_suffix(".md").write_text(md + "\n")
+    return result
+
+
+if __name__ == "__main__":
+    main()
