@@ -20,7 +20,7 @@ class TrainConfig:
     env_kwargs: dict[str, Any] = dataclasses.field(default_factory=dict)
     seed: int = 0
     num_seeds: int = 1
-    total_timesteps: int = 480_000
+    total_timesteps: int = 320_000
     num_envs: int = 16
     # network and loss
     hidden_sizes: tuple[int, ...] = (512, 256, 128, 64)
@@ -32,7 +32,7 @@ class TrainConfig:
     batch_size: int = 128
     learning_starts: int = 10_000
     updates_per_iteration: int = 1  # gradient steps per vectorized env step (num_envs steps)
-    n_step: int = 3
+    n_step: int = 1
     # per-run hyperparameters (vmappable leaves of HParams)
     gamma: float = 0.9
     lr: float = 1e-3

@@ -38,6 +38,10 @@ class Environment(Generic[StateT, ParamsT]):
     """Stateless environment: all episode data lives in ``state``, all settings in ``params``."""
 
     name: str = "Environment"
+    # Whether ``step_env`` draws random numbers. If not, ``step`` hands its key to the
+    # auto-reset alone and saves a key split per step (random numbers dominate the cost
+    # of a cheap step).
+    stochastic_step: bool = True
 
     @property
     def default_params(self) -> ParamsT:
@@ -55,6 +59,11 @@ class Environment(Generic[StateT, ParamsT]):
 
     # -- subclass hooks -------------------------------------------------------------
     def reset_env(self, key: jax.Array, params: ParamsT) -> tuple[jax.Array, StateT]:
+        raise NotImplementedError
+
+    def get_obs(self, state: StateT, params: ParamsT) -> jax.Array:
+        """The observation of ``state``: a pure function of it, so auto-reset can select the
+        (small) state first and build one observation instead of selecting two big ones."""
         raise NotImplementedError
 
     def step_env(
@@ -81,7 +90,10 @@ class Environment(Generic[StateT, ParamsT]):
         A time limit sets ``truncated`` only: it is not a terminal state for value targets.
         """
         params = self.default_params if params is None else params
-        key_step, key_reset = jax.random.split(key)
+        if self.stochastic_step:
+            key_step, key_reset = jax.random.split(key)
+        else:
+            key_step = key_reset = key
         obs_step, state_step, reward, terminated, info = self.step_env(
             key_step, state, action, params
         )
@@ -90,9 +102,9 @@ class Environment(Generic[StateT, ParamsT]):
             state_step.time >= params.max_steps_in_episode, jnp.logical_not(terminated)
         )
         done = jnp.logical_or(terminated, truncated)
-        obs_reset, state_reset = self.reset_env(key_reset, params)
+        _, state_reset = self.reset_env(key_reset, params)  # its obs is unused: XLA drops it
         state = jax.tree.map(lambda r, s: jnp.where(done, r, s), state_reset, state_step)
-        obs = jnp.where(done, obs_reset, obs_step)
+        obs = self.get_obs(state, params)
         info = dict(info)
         info["final_observation"] = obs_step
         return obs, state, jnp.asarray(reward, jnp.float32), terminated, truncated, info

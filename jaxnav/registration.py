@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 from jaxnav.environment import Environment, EnvParams
 from jaxnav.envs import grid_maze
@@ -27,9 +28,7 @@ def registered_envs() -> list[str]:
 def env_config(env_id: str, **overrides: Any) -> Any:
     """The validated config ``make(env_id, **overrides)`` would build, without building it."""
     if env_id not in _REGISTRY:
-        raise ValueError(
-            f"unknown env id {env_id!r}; valid ids: {', '.join(registered_envs())}"
-        )
+        raise ValueError(f"unknown env id {env_id!r}; valid ids: {', '.join(registered_envs())}")
     _, default_config, id_overrides = _REGISTRY[env_id]
     config = dataclasses.replace(default_config(), **id_overrides)
     valid = [f.name for f in dataclasses.fields(config)]
@@ -44,7 +43,7 @@ def env_config(env_id: str, **overrides: Any) -> Any:
 
 
 def make(env_id: str, **overrides: Any) -> tuple[Environment, EnvParams]:
-    """``env, params = make("GridMaze-v0", size=11)``; raises ``ValueError`` on a bad id or value."""
+    """``env, params = make("GridMaze-v0", size=11)``; ``ValueError`` on a bad id or value."""
     env_cls = _REGISTRY[env_id][0] if env_id in _REGISTRY else None
     config = env_config(env_id, **overrides)
     env = env_cls(config, name=env_id)

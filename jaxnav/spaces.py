@@ -37,9 +37,9 @@ class Box:
         self.dtype = dtype
 
     def sample(self, key: jax.Array) -> jax.Array:
-        return jax.random.uniform(
-            key, self.shape, minval=self.low, maxval=self.high
-        ).astype(self.dtype)
+        return jax.random.uniform(key, self.shape, minval=self.low, maxval=self.high).astype(
+            self.dtype
+        )
 
     def contains(self, x: jax.Array) -> jax.Array:
         x = jnp.asarray(x)

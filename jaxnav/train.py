@@ -196,7 +196,12 @@ class Trainer:
 
         def no_updates(ts):
             zero = jnp.zeros(())
-            return ts, {"loss": zero, "q_mean": zero, "q_max": zero, "updated": jnp.zeros((), jnp.int32)}
+            return ts, {
+                "loss": zero,
+                "q_mean": zero,
+                "q_max": zero,
+                "updated": jnp.zeros((), jnp.int32),
+            }
 
         ts, aux = jax.lax.cond(learning, updates, no_updates, ts)
         # target network: copy when env steps cross a multiple of the period (rejax-style)
@@ -206,7 +211,11 @@ class Trainer:
         crossed = learning & (after > before)
         target = jax.tree.map(lambda n, o: jnp.where(crossed, n, o), new_target, ts.target_params)
         ts = ts.replace(target_params=target)
-        stats |= {"loss_sum": aux["loss"] * aux["updated"], "q_sum": aux["q_mean"] * aux["updated"], "updated": aux["updated"]}
+        stats |= {
+            "loss_sum": aux["loss"] * aux["updated"],
+            "q_sum": aux["q_mean"] * aux["updated"],
+            "updated": aux["updated"],
+        }
         return ts, stats
 
     def _log_interval(self, ts: TrainState, log_index: jax.Array) -> tuple[TrainState, dict]:
@@ -236,7 +245,9 @@ class Trainer:
         return ts, metrics
 
     # -- whole runs -----------------------------------------------------------------
-    def run(self, ts: TrainState, first_log: int | jax.Array, num_logs: int) -> tuple[TrainState, dict]:
+    def run(
+        self, ts: TrainState, first_log: int | jax.Array, num_logs: int
+    ) -> tuple[TrainState, dict]:
         """``num_logs`` logging intervals starting at interval ``first_log``; metrics stacked."""
         logs = jnp.asarray(first_log) + jnp.arange(num_logs)
         return jax.lax.scan(self._log_interval, ts, logs)

@@ -82,9 +82,7 @@ class GymnaxV0:
         return to_gymnax_space(self._env.observation_space(params))
 
     @partial(jax.jit, static_argnames=("self",))
-    def reset(
-        self, key: jax.Array, params: EnvParams | None = None
-    ) -> tuple[jax.Array, EnvState]:
+    def reset(self, key: jax.Array, params: EnvParams | None = None) -> tuple[jax.Array, EnvState]:
         return self._env.reset(key, params)
 
     @partial(jax.jit, static_argnames=("self",))
@@ -96,9 +94,7 @@ class GymnaxV0:
         params: EnvParams | None = None,
     ) -> tuple[jax.Array, EnvState, jax.Array, jax.Array, dict[str, Any]]:
         """``(obs, state, reward, done, info)`` with ``done = terminated | truncated`` (bool)."""
-        obs, state, reward, terminated, truncated, info = self._env.step(
-            key, state, action, params
-        )
+        obs, state, reward, terminated, truncated, info = self._env.step(key, state, action, params)
         info = {
             **info,
             "terminated": terminated,

@@ -17,9 +17,7 @@ SIZE = 7
 
 def open_maze(max_steps: int = 60):
     """A 7x7 GridMaze without obstacles, so that every move's outcome is known."""
-    env, params = jaxnav.make(
-        "GridMaze-v0", size=SIZE, obstacle_density=0.0, max_steps=max_steps
-    )
+    env, params = jaxnav.make("GridMaze-v0", size=SIZE, obstacle_density=0.0, max_steps=max_steps)
     return GymnaxV0(env), params
 
 

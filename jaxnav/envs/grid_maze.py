@@ -141,7 +141,9 @@ def _fill_pockets(obstacles: np.ndarray) -> np.ndarray:
     label = np.where(free, np.arange(1, h * w + 1).reshape(1, h, w), 0)
     while True:  # propagate the largest cell label through each connected region
         p = np.pad(label, ((0, 0), (1, 1), (1, 1)))
-        nb = np.maximum.reduce([label, p[:, :-2, 1:-1], p[:, 2:, 1:-1], p[:, 1:-1, :-2], p[:, 1:-1, 2:]])
+        nb = np.maximum.reduce(
+            [label, p[:, :-2, 1:-1], p[:, 2:, 1:-1], p[:, 1:-1, :-2], p[:, 1:-1, 2:]]
+        )
         new = np.where(free, nb, 0)
         if np.array_equal(new, label):
             break
@@ -207,9 +209,9 @@ def build_bank(cfg: GridMazeConfig) -> LayoutBank:
     )
     if cfg.random_layouts:
         rng = np.random.default_rng(cfg.layout_seed + 1)
-        goal_slots = np.floor(
-            rng.random((num, cfg.goals_per_layout)) * num_free[:, None]
-        ).astype(np.int32)
+        goal_slots = np.floor(rng.random((num, cfg.goals_per_layout)) * num_free[:, None]).astype(
+            np.int32
+        )
     else:
         goal_slots = np.arange(fmax, dtype=np.int32)[None, :]  # every free cell is a goal
     goals = np.take_along_axis(free_cells, goal_slots[..., None], axis=1)
@@ -234,6 +236,33 @@ def build_bank(cfg: GridMazeConfig) -> LayoutBank:
 
 
 # ------------------------------------------------------------------------ environment
+def _reset_bits(key: jax.Array) -> jax.Array:
+    """Two random 32-bit words for a reset, from the key's own 64 bits through the murmur3
+    finalizer. The random numbers of a reset cost more than the rest of an auto-reset step
+    together, and one threefry draw costs 3.5x this (benchmarks/env_throughput.py); keys are
+    fresh splits (or user seeds, which the finalizer's avalanche spreads), so this is enough
+    to pick a start and goal. Statistical quality is not needed beyond that."""
+    data = jax.random.key_data(key) if jnp.issubdtype(key.dtype, jax.dtypes.prng_key) else key
+    data = data.reshape(-1).astype(jnp.uint32)
+    w0, w1 = data[0], data[-1]
+
+    def fmix(x):
+        x = x ^ (x >> 16)
+        x = x * jnp.uint32(0x85EBCA6B)
+        x = x ^ (x >> 13)
+        x = x * jnp.uint32(0xC2B2AE35)
+        return x ^ (x >> 16)
+
+    a = fmix(w0 * jnp.uint32(0x9E3779B1) ^ fmix(w1 + jnp.uint32(0x7F4A7C15)))
+    return jnp.stack([a, fmix(a ^ w1 ^ jnp.uint32(0x632BE5AB))])
+
+
+def _pick(random_bits: jax.Array, n: jax.Array | int, num_bits: int = 24) -> jax.Array:
+    """A uniform integer in [0, n) from ``num_bits`` random bits (bias below n / 2^num_bits)."""
+    u = random_bits.astype(jnp.float32) * (1.0 / (1 << num_bits))
+    return jnp.minimum((u * n).astype(jnp.int32), n - 1)
+
+
 @struct.dataclass
 class GridMazeState(EnvState):
     pos: jax.Array  # int32[2] robot (row, col)
@@ -253,6 +282,8 @@ class GridMazeParams(EnvParams):
 
 class GridMaze(Environment[GridMazeState, GridMazeParams]):
     """Grid navigation to a goal among obstacles; see the module docstring."""
+
+    stochastic_step = False  # moves are deterministic
 
     def __init__(self, config: GridMazeConfig | None = None, name: str = "GridMaze-v0"):
         self.config = default_config() if config is None else config
@@ -291,11 +322,11 @@ class GridMaze(Environment[GridMazeState, GridMazeParams]):
     # -- episodes -----------------------------------------------------------------
     def reset_env(self, key: jax.Array, params: GridMazeParams) -> tuple[jax.Array, GridMazeState]:
         bank = params.bank
-        k_layout, k_goal, k_start = jax.random.split(key, 3)
-        layout = jax.random.randint(k_layout, (), 0, bank.num_layouts)
-        slot = jax.random.randint(k_goal, (), 0, bank.goal_slots.shape[1])
+        bits = _reset_bits(key)
+        layout = _pick(bits[0] >> 8, bank.num_layouts)
+        slot = _pick(((bits[0] & 0xFF) << 8) | (bits[1] & 0xFF), bank.goal_slots.shape[1], 16)
         goal_idx = bank.goal_slots[layout, slot]
-        start_idx = jax.random.randint(k_start, (), 0, bank.num_free[layout] - 1)
+        start_idx = _pick(bits[1] >> 8, bank.num_free[layout] - 1)
         start_idx = start_idx + (start_idx >= goal_idx)  # any free cell but the goal's
         start = bank.free_cells[layout, start_idx]
         goal = bank.free_cells[layout, goal_idx]
@@ -331,9 +362,8 @@ class GridMaze(Environment[GridMazeState, GridMazeParams]):
         return self.get_obs(state, params), state
 
     def step_env(self, key, state: GridMazeState, action, params: GridMazeParams):
-        obstacles = params.bank.obstacles[state.layout]
         target = state.pos + jnp.asarray(MOVES)[action]
-        blocked = self._blocked(obstacles, target)
+        blocked = self._blocked(params, state.layout, target)
         pos = jnp.where(blocked, state.pos, target)
         at_goal = jnp.logical_and(jnp.all(pos == state.goal), jnp.logical_not(blocked))
         r_goal = jnp.where(at_goal, params.goal_reward, 0.0)
@@ -352,23 +382,23 @@ class GridMaze(Environment[GridMazeState, GridMazeParams]):
         return self.get_obs(state, params), state, reward, at_goal | blocked, info
 
     # -- observation --------------------------------------------------------------
-    def _blocked(self, obstacles: jax.Array, cell: jax.Array) -> jax.Array:
-        """Whether ``cell`` (..., 2) is off the grid or an obstacle."""
+    def _blocked(self, params: GridMazeParams, layout: jax.Array, cell: jax.Array) -> jax.Array:
+        """Whether ``cell`` (..., 2) of ``layout`` is off the grid or an obstacle."""
         inside = jnp.all((cell >= 0) & (cell < self.size), axis=-1)
-        clipped = jnp.clip(cell, 0, self.size - 1)
-        return jnp.logical_or(~inside, obstacles[clipped[..., 0], clipped[..., 1]])
+        c = jnp.clip(cell, 0, self.size - 1)
+        # one gather of the cells, not a copy of the whole layout first
+        return jnp.logical_or(~inside, params.bank.obstacles[layout, c[..., 0], c[..., 1]])
 
     def get_obs(self, state: GridMazeState, params: GridMazeParams) -> jax.Array:
         s, mode = self.size, self.config.obs_mode
         scale = 1.0 / max(s - 1, 1)
-        obstacles = params.bank.obstacles[state.layout]
         offset = (state.goal - state.pos).astype(jnp.float32) * scale
         if mode == "paper":
             xy = lambda rc: rc[..., ::-1].astype(jnp.float32) * scale  # noqa: E731
             obs_cells = params.bank.obstacle_cells[state.layout]
             return jnp.concatenate([xy(state.pos), xy(state.goal), xy(obs_cells).ravel()])
         if mode == "onehot":
-            neighbours = self._blocked(obstacles, state.pos + jnp.asarray(MOVES))
+            neighbours = self._blocked(params, state.layout, state.pos + jnp.asarray(MOVES))
             return jnp.concatenate(
                 [
                     jax.nn.one_hot(state.pos[0], s),
@@ -382,10 +412,10 @@ class GridMaze(Environment[GridMazeState, GridMazeParams]):
         r = self.config.sensor_radius
         d = np.arange(-r, r + 1, dtype=np.int32)
         window = np.stack(np.meshgrid(d, d, indexing="ij"), axis=-1).reshape(-1, 2)
-        occupancy = self._blocked(obstacles, state.pos + jnp.asarray(window))
+        occupancy = self._blocked(params, state.layout, state.pos + jnp.asarray(window))
         steps = np.arange(1, s, dtype=np.int32)
         rays = MOVES[:, None, :] * steps[None, :, None]  # [4, s-1, 2]
-        hit = self._blocked(obstacles, state.pos + jnp.asarray(rays))
+        hit = self._blocked(params, state.layout, state.pos + jnp.asarray(rays))
         free_run = jnp.argmax(jnp.concatenate([hit, jnp.ones((4, 1), bool)], axis=1), axis=1)
         return jnp.concatenate(
             [occupancy.astype(jnp.float32), free_run.astype(jnp.float32) * scale, offset]

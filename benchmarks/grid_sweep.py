@@ -1,0 +1,106 @@
+"""Train several configs (each over several seeds, vmapped) and evaluate them greedily.
+
+Used to choose GridMaze-v0's default observation and the default hyperparameters by
+measurement. Example (the README's observation-mode table):
+
+    python -m benchmarks.grid_sweep --seeds 3 \
+        --variant onehot '{"env_kwargs": {"obs_mode": "onehot"}}' \
+        --variant paper '{"env_kwargs": {"obs_mode": "paper"}}'
+
+Each variant is a JSON dict of TrainConfig overrides. Prints a table, writes JSON.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import platform
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from jaxnav.config import TrainConfig
+from jaxnav.evaluate import run_episodes, summarize
+from jaxnav.train import Trainer
+
+
+def run_variant(overrides: dict, seeds: int, eval_episodes: int, base: dict) -> dict:
+    cfg = TrainConfig(**{**base, **overrides, "num_seeds": seeds})
+    if "hidden_sizes" in overrides:
+        cfg = dataclasses.replace(cfg, hidden_sizes=tuple(overrides["hidden_sizes"]))
+    trainer = Trainer(cfg)
+    keys = jax.random.split(jax.random.key(cfg.seed), seeds)
+    t0 = time.perf_counter()
+    train = jax.jit(jax.vmap(trainer.train)).lower(keys).compile()
+    compile_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    ts, metrics = jax.block_until_ready(train(keys))
+    train_s = time.perf_counter() - t0
+
+    def evaluate_one(params):
+        policy = trainer.greedy_policy(params)
+        return run_episodes(
+            trainer.env,
+            trainer.env_params,
+            policy,
+            jax.random.key(12345),
+            eval_episodes,
+            trainer.config.env_kwargs.get("max_steps", 60),
+        )
+
+    episodes = jax.jit(jax.vmap(evaluate_one))(ts.params)
+    per_seed = [summarize(jax.tree.map(lambda x, i=i: x[i], episodes)) for i in range(seeds)]
+    curve = np.asarray(metrics["success_rate"]).mean(axis=0).round(3).tolist()
+    return {
+        "overrides": overrides,
+        "compile_s": compile_s,
+        "train_s": train_s,
+        "per_seed": per_seed,
+        "success_mean": float(np.mean([s["success_rate"] for s in per_seed])),
+        "success_min": float(np.min([s["success_rate"] for s in per_seed])),
+        "path_ratio_mean": float(np.mean([s["mean_path_ratio"] for s in per_seed])),
+        "train_success_curve": curve,
+    }
+
+
+def main(argv: list[str] | None = None) -> list[dict]:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--variant", nargs=2, action="append", metavar=("NAME", "JSON"), default=[])
+    ap.add_argument("--base", default="{}", help="JSON overrides shared by all variants")
+    ap.add_argument("--seeds", type=int, default=3)
+    ap.add_argument("--eval-episodes", type=int, default=1000)
+    ap.add_argument("--out", default="benchmarks/results/grid_sweep.json")
+    args = ap.parse_args(argv)
+    base = json.loads(args.base)
+    rows = []
+    print("| variant | success mean | success min | path ratio | compile s | train s |")
+    print("|---|---|---|---|---|---|")
+    for name, spec in args.variant:
+        r = run_variant(json.loads(spec), args.seeds, args.eval_episodes, base)
+        r["name"] = name
+        rows.append(r)
+        print(
+            f"| {name} | {r['success_mean']:.3f} | {r['success_min']:.3f} | "
+            f"{r['path_ratio_mean']:.3f} | {r['compile_s']:.1f} | {r['train_s']:.1f} |",
+            flush=True,
+        )
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    meta = {
+        "machine": platform.platform(),
+        "backend": jax.default_backend(),
+        "devices": [d.device_kind for d in jax.devices()],
+        "jax": jax.__version__,
+        "date": time.strftime("%Y-%m-%d %H:%M"),
+        "base": base,
+        "seeds": args.seeds,
+    }
+    out.write_text(json.dumps({"meta": meta, "rows": rows}, indent=1))
+    return rows
+
+
+if __name__ == "__main__":
+    main()
