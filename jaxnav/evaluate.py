@@ -94,3 +94,11 @@ def evaluate(
     run = jax.jit(run_episodes, static_argnums=(0, 2, 4, 5))
     max_steps = int(params.max_steps_in_episode)
     return summarize(run(env, params, policy, key, num_episodes, max_steps))
+
+
+if __name__ == "__main__":
+    import sys
+
+    from jaxnav.cli import evaluate_main
+
+    sys.exit(evaluate_main())

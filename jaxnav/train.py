@@ -266,6 +266,9 @@ def make_train(
     return Trainer(config, progress).train
 
 
-@partial(jax.jit, static_argnums=(0, 3))
-def _run_seeds(trainer: Trainer, ts: TrainState, first_log, num_logs: int):
-    return jax.vmap(trainer.run, in_axes=(0, None, None))(ts, first_log, num_logs)
+if __name__ == "__main__":
+    import sys
+
+    from jaxnav.cli import train_main
+
+    sys.exit(train_main())

@@ -1,0 +1,123 @@
+"""A training run on disk: config.json, metrics.csv, params/ (orbax), summary.json, eval.json."""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import os
+import platform
+import sys
+import tempfile
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import orbax.checkpoint as ocp
+
+from jaxnav.config import TrainConfig
+
+PACKAGES = ("jaxnav", "jax", "jaxlib", "flax", "optax", "chex", "orbax-checkpoint", "mujoco-mjx")
+
+
+def environment_info() -> dict[str, Any]:
+    versions = {}
+    for name in PACKAGES:
+        try:
+            versions[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            versions[name] = None
+    return {
+        "python": sys.version.split()[0],
+        "platform": platform.platform(),
+        "cpu_count": os.cpu_count(),
+        "jax_backend": jax.default_backend(),
+        "devices": [str(d) for d in jax.devices()],
+        "packages": versions,
+    }
+
+
+def check_writable(out: Path) -> None:
+    """Raise ``ValueError`` if a run cannot be written to ``out`` (checked before any work)."""
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise ValueError(f"--out {out}: already exists and is not an empty directory")
+    parent = out.parent if not out.exists() else out
+    while not parent.exists():
+        parent = parent.parent
+    try:  # really create a file: permission bits lie on read-only or special filesystems
+        with tempfile.TemporaryFile(dir=parent):
+            pass
+    except OSError:
+        raise ValueError(f"--out {out}: {parent} is not a writable directory") from None
+
+
+def config_to_json(config: TrainConfig) -> dict[str, Any]:
+    d = dataclasses.asdict(config)
+    d["hidden_sizes"] = list(config.hidden_sizes)
+    return d
+
+
+def config_from_json(d: dict[str, Any]) -> TrainConfig:
+    d = dict(d)
+    d["hidden_sizes"] = tuple(d["hidden_sizes"])
+    return TrainConfig(**d)
+
+
+def write_json(path: Path, obj: Any) -> None:
+    """Write atomically: a crash leaves the old file or the new one, never half of one."""
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(obj, indent=2) + "\n")
+    os.replace(tmp, path)
+
+
+def write_metrics_csv(path: Path, metrics: dict[str, np.ndarray], seeds: list[int]) -> None:
+    """One row per (seed, logging interval); ``metrics`` arrays are [num_seeds, num_logs]."""
+    names = list(metrics)
+    tmp = path.with_name(path.name + ".tmp")
+    with tmp.open("w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["seed", *names])
+        for i, seed in enumerate(seeds):
+            for t in range(np.asarray(metrics[names[0]]).shape[1]):
+                w.writerow([seed, *(_fmt(metrics[n][i, t]) for n in names)])
+    os.replace(tmp, path)
+
+
+def _fmt(v: Any) -> str:
+    v = np.asarray(v).item()
+    return str(v) if isinstance(v, int) else repr(float(v))
+
+
+def save_params(run: Path, params: Any) -> None:
+    """Final network parameters (all seeds stacked on axis 0) as an orbax checkpoint."""
+    with ocp.StandardCheckpointer() as ckpt:
+        ckpt.save((run / "params").absolute(), jax.device_get(params))
+
+
+def load_params(run: Path, like: Any) -> Any:
+    """Parameters saved by ``save_params``; ``like`` gives their structure (abstract is fine)."""
+    abstract = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype), like)
+    with ocp.StandardCheckpointer() as ckpt:
+        return ckpt.restore((run / "params").absolute(), abstract)
+
+
+def seeds_of(config: TrainConfig) -> list[int]:
+    return [config.seed + i for i in range(config.num_seeds)]
+
+
+def seed_keys(config: TrainConfig) -> jax.Array:
+    """One independent key per seed: seed ``s`` trains the same whether run alone or vmapped."""
+    return jnp.stack([jax.random.key(s) for s in seeds_of(config)])
+
+
+def load_config(run: Path) -> TrainConfig:
+    path = run / "config.json"
+    if not path.is_file():
+        raise ValueError(f"{run}: not a run directory (no config.json)")
+    try:
+        return config_from_json(json.loads(path.read_text())["config"])
+    except (KeyError, TypeError, json.JSONDecodeError) as e:
+        raise ValueError(f"{path}: unreadable run config ({e})") from None

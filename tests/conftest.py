@@ -1,0 +1,87 @@
+"""Shared, session-scoped fixtures: environments and compiled trainers are built once per
+worker, so each test pays for its assertions, not for compilation."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import pytest
+
+import jaxnav
+from jaxnav.config import TrainConfig
+from jaxnav.train import Trainer
+
+MAZE_SIZE = 7
+
+
+@pytest.fixture(scope="session")
+def open_maze():
+    """7x7 GridMaze-v0 without obstacles: every move's outcome is known."""
+    return jaxnav.make("GridMaze-v0", size=MAZE_SIZE, obstacle_density=0.0)
+
+
+@pytest.fixture(scope="session")
+def maze():
+    """7x7 GridMaze-v0 with obstacles (one fixed layout)."""
+    return jaxnav.make("GridMaze-v0", size=MAZE_SIZE, obstacle_density=0.2)
+
+
+@pytest.fixture(scope="session")
+def random_maze():
+    """7x7 GridMaze-Random-v0 with a bank of 8 layouts, short episodes."""
+    return jaxnav.make(
+        "GridMaze-Random-v0", size=MAZE_SIZE, num_layouts=8, goals_per_layout=4, max_steps=12
+    )
+
+
+# ---------------------------------------------------------------------------- training
+TINY_TRAIN = TrainConfig(
+    env="GridMaze-v0",
+    env_kwargs={"size": 5},
+    hidden_sizes=(16,),
+    num_envs=4,
+    batch_size=8,
+    buffer_size=64,
+    learning_starts=8,
+    total_timesteps=96,
+    log_interval=32,
+    target_update_period=10,  # not a multiple of num_envs
+    eps_decay_steps=64,
+    eval_episodes=0,
+)
+
+
+@pytest.fixture(scope="session")
+def tiny_config() -> TrainConfig:
+    return TINY_TRAIN
+
+
+@pytest.fixture(scope="session")
+def tiny_trainer(tiny_config) -> Trainer:
+    return Trainer(tiny_config)
+
+
+@pytest.fixture(scope="session")
+def train_one(tiny_trainer):
+    """``jit(trainer.train)``: one seed with the config's hyperparameters."""
+    return jax.jit(tiny_trainer.train)
+
+
+@pytest.fixture(scope="session")
+def train_many(tiny_trainer):
+    """``jit(vmap(trainer.train))`` over (keys, HParams), both batched."""
+    return jax.jit(jax.vmap(tiny_trainer.train))
+
+
+@pytest.fixture(scope="session")
+def seed0_run(train_one):
+    """Final state and metrics of seed 0 (computed once)."""
+    return jax.block_until_ready(train_one(jax.random.key(0)))
+
+
+@pytest.fixture(scope="session")
+def stepwise_trainer(tiny_config) -> Trainer:
+    """The tiny config with one iteration (num_envs env steps) per logging interval."""
+    cfg = dataclasses.replace(tiny_config, log_interval=tiny_config.num_envs, total_timesteps=60)
+    return Trainer(cfg)
