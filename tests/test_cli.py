@@ -1,0 +1,124 @@
+"""The command lines as a user runs them: outputs on disk, and bad input refused cleanly."""
+
+from __future__ import annotations
+
+import csv
+import json
+import subprocess
+import sys
+
+import pytest
+
+from jaxnav.cli import evaluate_main, train_main
+
+TINY = [
+    "--env-arg", "size=7",
+    "--hidden-sizes", "32,32",
+    "--num-envs", "8",
+    "--total-timesteps", "4000",
+    "--learning-starts", "800",
+    "--buffer-size", "2000",
+    "--batch-size", "32",
+    "--log-interval", "1000",
+    "--eval-episodes", "50",
+    "--num-seeds", "2",
+]  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def tiny_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("runs") / "tiny"
+    assert train_main([*TINY, "--out", str(out), "--quiet"]) == 0
+    return out
+
+
+def test_train_writes_a_complete_run(tiny_run):
+    assert sorted(p.name for p in tiny_run.iterdir()) == [
+        "config.json", "metrics.csv", "params", "summary.json",
+    ]  # fmt: skip
+    config = json.loads((tiny_run / "config.json").read_text())
+    assert config["config"]["env_kwargs"] == {"size": 7}
+    assert config["network"]["hidden_sizes"] == [32, 32]
+    assert config["environment"]["packages"]["jax"]
+    rows = list(csv.DictReader((tiny_run / "metrics.csv").open()))
+    assert len(rows) == 2 * 4  # seeds x logging intervals
+    assert {"env_steps", "mean_return", "success_rate", "loss", "epsilon", "sps"} <= set(rows[0])
+    assert [int(r["env_steps"]) for r in rows[:4]] == [1000, 2000, 3000, 4000]
+    assert {r["seed"] for r in rows} == {"0", "1"}
+    summary = json.loads((tiny_run / "summary.json").read_text())
+    for policy in ("trained", "random_policy"):
+        assert 0.0 <= summary[policy]["success_rate"] <= 1.0
+        assert summary[policy]["episodes"] == 50
+    assert len(summary["trained_per_seed"]) == 2
+
+
+def test_evaluate_reads_the_run_and_generalizes(tiny_run, tmp_path, capsys):
+    assert evaluate_main([str(tiny_run), "--episodes", "40"]) == 0
+    result = json.loads((tiny_run / "eval.json").read_text())
+    assert result["episodes"] == 40 and len(result["per_seed"]) == 2
+    assert result["success_rate"] + result["collision_rate"] + result["timeout_rate"] == (
+        pytest.approx(1.0)
+    )
+    out = tmp_path / "other.json"
+    args = [str(tiny_run), "--policy", "random", "--env-arg", "layout_seed=5", "--out", str(out)]
+    assert evaluate_main(args) == 0
+    other = json.loads(out.read_text())
+    assert other["policy"] == "random" and other["env_kwargs"] == {"size": 7, "layout_seed": 5}
+    assert "success_rate" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    "args, named",
+    [
+        (["--env", "Nope-v0"], "Nope-v0"),
+        (["--bogus", "1"], "--bogus"),
+        (["--num-envs", "0"], "num_envs=0"),
+        (["--total-timesteps", "-5"], "total_timesteps=-5"),
+        (["--env-arg", "size=0"], "size=0"),
+        (["--env-arg", "obstacle_density=0.999"], "obstacle_density=0.999"),
+        (["--env-arg", "colour=3"], "colour"),
+        (["--batch-size", "5000", "--buffer-size", "4000"], "batch_size=5000"),
+        (["--learning-starts", "10000000"], "learning_starts=10000000"),
+        (["--gamma", "1.5"], "gamma=1.5"),
+        (["--dueling", "maybe"], "maybe"),
+    ],
+)
+def test_bad_input_is_one_line_exit_2_nothing_written(args, named, tmp_path, capsys):
+    out = tmp_path / "run"
+    assert train_main([*args, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and named in err and "Traceback" not in err
+    assert not out.exists() and list(tmp_path.iterdir()) == []
+
+
+def test_unwritable_or_used_out_dir_is_refused(tiny_run, tmp_path, capsys):
+    assert train_main(["--out", str(tiny_run)]) == 2  # never overwrite a run
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    assert train_main(["--out", str(blocker / "run")]) == 2
+    err = capsys.readouterr().err
+    assert str(tiny_run) in err and str(blocker) in err
+
+
+def test_cli_process_exit_code_and_help():
+    bad = subprocess.run(
+        [sys.executable, "-m", "jaxnav.train", "--num-envs", "-3"], capture_output=True, text=True
+    )
+    assert bad.returncode == 2
+    assert (
+        bad.stderr.strip()
+        == "jaxnav.train: error: num_envs=-3: must be an integer in [1, 16777216]"
+    )
+    helped = subprocess.run(
+        [sys.executable, "-m", "jaxnav.train", "--help"], capture_output=True, text=True
+    )
+    assert helped.returncode == 0
+    for flag in ("--env", "--num-seeds", "--total-timesteps", "--gamma", "--env-arg", "--out"):
+        assert flag in helped.stdout
+    assert "default: 320000" in helped.stdout
+    missing = subprocess.run(
+        [sys.executable, "-m", "jaxnav.evaluate", "/nonexistent/run"],
+        capture_output=True,
+        text=True,
+    )
+    assert missing.returncode == 2 and "no config.json" in missing.stderr
