@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import os
 import shutil
 import sys
 import time
@@ -197,6 +198,16 @@ def mean_of(rows: Sequence[dict[str, float]]) -> dict[str, float]:
     return {k: float(np.mean([r[k] for r in rows])) for k in rows[0]}
 
 
+def enable_compilation_cache() -> None:
+    """Persist compiled programs across runs (``JAXNAV_CACHE_DIR``, default
+    ``~/.cache/jaxnav/xla``; set it to an empty string to disable): a second run of the same
+    config skips XLA compilation."""
+    path = os.environ.get("JAXNAV_CACHE_DIR", str(Path.home() / ".cache" / "jaxnav" / "xla"))
+    if path:
+        jax.config.update("jax_compilation_cache_dir", path)
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+
+
 def _fail(prog: str, message: str) -> int:
     print(f"{prog}: error: {message}", file=sys.stderr)
     return 2
@@ -216,6 +227,7 @@ def train_main(argv: Sequence[str] | None = None) -> int:
     except (UsageError, ValueError) as e:
         return _fail(prog, str(e))
 
+    enable_compilation_cache()
     keys = run_dir.seed_keys(config)
     print(
         f"training {config.env} for {config.total_timesteps:,} steps x {config.num_seeds} "
@@ -344,6 +356,7 @@ def evaluate_main(argv: Sequence[str] | None = None) -> int:
         params = run_dir.load_params(args.run, like)
     except (UsageError, ValueError, FileNotFoundError) as e:
         return _fail(prog, str(e))
+    enable_compilation_cache()
     rows = evaluate_seeds(trainer, params, args.episodes, args.seed, args.policy)
     result = {
         "run": str(args.run),
