@@ -30,7 +30,7 @@ def test_train_throughput_smoke(tmp_path: Path) -> None:
     assert row["buffer_rows"] == 100 and row["replay_ratio"] == 8 / 4
     for part in ("bare", "loop", "no_update_loop"):
         assert row[part]["compile_s"] > 0 and len(row[part]["run_s"]) == 3, part
-        assert all(t > 0 for t in row[part]["run_s"]), part
+        assert all(t > 0 for t in row[part]["run_s"]) and len(row[part]["cpu_s"]) == 3, part
     assert row["bare"]["updates"] == 5 and row["bare"]["updates_per_s"] > 0
     loop = row["loop"]
     assert loop["updates_per_s"] == loop["iterations_per_s"] > 0
