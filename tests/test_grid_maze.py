@@ -147,6 +147,16 @@ def test_observation_contents_of_each_mode():
     np.testing.assert_allclose(s[-2:], offset)
 
 
+def test_paper_observation_lists_every_obstacle():
+    size = 7
+    env, params = jaxnav.make("GridMaze-v0", size=size, obstacle_density=0.2, obs_mode="paper")
+    obs, _ = jit_env(env).reset(KEY, params)
+    xy = np.rint(np.asarray(obs[4:]).reshape(-1, 2) * (size - 1)).astype(int)
+    rows, cols = np.nonzero(np.asarray(params.bank.obstacles[0]))
+    assert len(xy) == len(rows) > 0
+    assert {(int(x), int(y)) for x, y in xy} == set(zip(cols.tolist(), rows.tolist(), strict=True))
+
+
 def test_action_space(open_maze):
     env, params = open_maze
     space = env.action_space(params)
