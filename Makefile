@@ -12,7 +12,7 @@ $(BIN)/python:
 	$(BIN)/python -m pip install --quiet --upgrade pip
 
 $(STAMP): pyproject.toml | $(BIN)/python
-	$(BIN)/python -m pip install --quiet -e ".[dev,notebook]"
+	$(BIN)/python -m pip install --quiet -e ".[dev,notebook,bench]"
 	touch $(STAMP)
 
 train: $(STAMP)
@@ -26,7 +26,6 @@ lint: $(STAMP)
 	$(BIN)/python -m ruff check jaxnav tests benchmarks
 
 bench: $(STAMP)
-	$(BIN)/python -m pip install --quiet -e ".[bench]"
 	$(BIN)/python -m benchmarks.env_throughput
 	$(BIN)/python -m benchmarks.train_throughput
 

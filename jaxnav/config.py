@@ -8,6 +8,9 @@ from typing import Any
 
 from jaxnav.registration import env_config
 
+# step counters are int32 inside the compiled loop; keep a margin below 2^31
+MAX_STEPS = 2_000_000_000
+
 
 @dataclasses.dataclass(frozen=True)
 class TrainConfig:
@@ -61,6 +64,11 @@ class TrainConfig:
         return max(1, math.ceil(self.total_timesteps / (self.iterations_per_log * self.num_envs)))
 
     @property
+    def first_learning_iteration(self) -> int:
+        """The first iteration whose env-step count reaches ``learning_starts``."""
+        return -(-self.learning_starts // self.num_envs)
+
+    @property
     def buffer_rows(self) -> int:
         return max(self.n_step, self.buffer_size // self.num_envs)
 
@@ -70,16 +78,16 @@ class TrainConfig:
         ints = {
             "seed": (0, 2**31 - 1),
             "num_seeds": (1, 4096),
-            "total_timesteps": (1, 10**12),
+            "total_timesteps": (1, MAX_STEPS),
             "num_envs": (1, 2**24),
             "buffer_size": (1, 10**9),
             "batch_size": (1, 2**20),
-            "learning_starts": (0, 10**12),
+            "learning_starts": (0, MAX_STEPS),
             "updates_per_iteration": (1, 1024),
             "n_step": (1, 64),
-            "target_update_period": (1, 10**12),
-            "eps_decay_steps": (1, 10**12),
-            "log_interval": (1, 10**12),
+            "target_update_period": (1, MAX_STEPS),
+            "eps_decay_steps": (1, MAX_STEPS),
+            "log_interval": (1, MAX_STEPS),
             "eval_episodes": (0, 10**7),
         }
         for name, (lo, hi) in ints.items():
@@ -125,6 +133,11 @@ class TrainConfig:
             raise ValueError(
                 f"buffer_size={self.buffer_size} must hold n_step={self.n_step} steps of "
                 f"num_envs={self.num_envs} envs (>= {self.num_envs * self.n_step})"
+            )
+        if self.iterations * self.num_envs > MAX_STEPS:
+            raise ValueError(
+                f"total_timesteps={self.total_timesteps}: rounded up to whole logging intervals "
+                f"it exceeds {MAX_STEPS} steps"
             )
         if self.learning_starts >= self.total_timesteps:
             raise ValueError(

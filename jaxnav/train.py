@@ -96,7 +96,7 @@ class Trainer:
     @property
     def total_updates(self) -> int:
         c = self.config
-        learning_iterations = c.iterations - min(c.iterations, c.learning_starts // c.num_envs)
+        learning_iterations = c.iterations - min(c.iterations, c.first_learning_iteration)
         return max(1, learning_iterations * c.updates_per_iteration)
 
     def learning_rate(self, hp: HParams, updates: jax.Array) -> jax.Array:
@@ -227,7 +227,7 @@ class Trainer:
         episodes = jnp.maximum(s["episodes"], 1)
         updated = jnp.maximum(s["updated"], 1)
         env_steps = (first + c.iterations_per_log) * c.num_envs
-        updates_done = jnp.maximum(0, its[-1] + 1 - c.learning_starts // c.num_envs)
+        updates_done = jnp.maximum(0, its[-1] + 1 - c.first_learning_iteration)
         metrics = {
             "env_steps": env_steps,
             "episodes": s["episodes"],
