@@ -53,12 +53,12 @@ import jax.numpy as jnp
 
 from benchmarks.env_throughput import machine_info
 from jaxnav.agents import dqn
-from jaxnav.config import TrainConfig
+from jaxnav.config import MAX_STEPS, TrainConfig
 from jaxnav.train import Trainer, TrainState
 
 DEFAULT_OUT = Path("benchmarks/results/train_throughput.json")
 GOAL_RATIO = 0.85
-NEVER = 2**31 - 1  # learning_starts of the no-update loop (env steps are int32)
+NEVER = MAX_STEPS // 2  # learning_starts of the no-update loop (env steps are int32)
 
 
 def make_config(

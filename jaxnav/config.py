@@ -36,13 +36,13 @@ class TrainConfig:
     learning_starts: int = 10_000
     updates_per_iteration: int = 1  # gradient steps per vectorized env step (num_envs steps)
     n_step: int = 1
+    target_update_period: int = 2_000  # static, so skipped iterations cost nothing
+    optimizer: str = "adam"
     # per-run hyperparameters (vmappable leaves of HParams)
     gamma: float = 0.9
     lr: float = 1e-3
     lr_end: float = 1e-4
-    optimizer: str = "adam"
     max_grad_norm: float = 10.0
-    target_update_period: int = 2_000
     tau: float = 1.0
     eps_start: float = 1.0
     eps_end: float = 0.05

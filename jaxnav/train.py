@@ -44,7 +44,6 @@ class HParams:
     lr: jax.Array
     lr_end: jax.Array
     max_grad_norm: jax.Array
-    target_update_period: jax.Array
     tau: jax.Array
     eps_start: jax.Array
     eps_end: jax.Array
@@ -204,13 +203,17 @@ class Trainer:
             }
 
         ts, aux = jax.lax.cond(learning, updates, no_updates, ts)
-        # target network: copy when env steps cross a multiple of the period (rejax-style)
-        before = jnp.floor(env_steps / hp.target_update_period)
-        after = jnp.floor((env_steps + c.num_envs) / hp.target_update_period)
-        new_target = dqn.polyak(ts.target_params, ts.params, hp.tau)
-        crossed = learning & (after > before)
-        target = jax.tree.map(lambda n, o: jnp.where(crossed, n, o), new_target, ts.target_params)
-        ts = ts.replace(target_params=target)
+        # target network: update when env steps cross a multiple of the period (rejax-style).
+        # The period is static, so ``crossed`` is unbatched under vmap and the cond skips the
+        # parameter-sized work on other iterations.
+        period = c.target_update_period
+        crossed = learning & ((env_steps + c.num_envs) // period > env_steps // period)
+        ts = jax.lax.cond(
+            crossed,
+            lambda ts: ts.replace(target_params=dqn.polyak(ts.target_params, ts.params, hp.tau)),
+            lambda ts: ts,
+            ts,
+        )
         stats |= {
             "loss_sum": aux["loss"] * aux["updated"],
             "q_sum": aux["q_mean"] * aux["updated"],
