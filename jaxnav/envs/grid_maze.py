@@ -17,7 +17,8 @@ Observation modes (all encode the paper's information: robot, goal and obstacle 
 
 - ``paper``: the literal encoding: robot (x, y), goal (x, y) and every obstacle's (x, y),
   divided by ``size - 1``. Obstacle lists are padded to the bank's largest by repeating the
-  first obstacle (a duplicate adds no information).
+  first obstacle (a duplicate adds no information); a layout without obstacles shows one at
+  (0, 0), the same in every observation.
 - ``onehot`` (default of GridMaze-v0, chosen by measurement, see README): one-hot robot row,
   robot column, goal row and goal column, whether each of the 4 neighbours is blocked, and
   the goal's offset (drow, dcol) / (size - 1). For a fixed layout the obstacle coordinates
@@ -125,7 +126,8 @@ class LayoutBank:
 def generate_layouts(size: int, density: float, num: int, seed: int) -> np.ndarray:
     """``num`` layouts with ``round(density * size^2)`` random obstacles each, then every free
     cell outside the largest connected free region filled in, so that any two free cells are
-    connected (the density can rise slightly above the requested one)."""
+    connected. The density rises above the requested one as pockets fill: on 15x15, 0.2 gives
+    about 0.21 and 0.3 about 0.36."""
     rng = np.random.default_rng(seed)
     cells = size * size
     k = round(density * cells)
