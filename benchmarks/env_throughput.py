@@ -7,7 +7,8 @@ Each (env, num_envs) row jits one function that scans ``--steps`` steps of the v
 with uniformly random actions (per-step action and key sampling included in the timing).
 The scan carries the observation and sums the reward, so XLA cannot drop the observation
 computation. "compile s" is trace + lower + XLA compile (``jit(f).lower(...).compile()``);
-steps/s uses the median of 3 runs of the compiled function after compilation.
+steps/s uses the median of ``--rounds`` runs after a warm-up; the rows of one num_envs are
+timed in turn, round by round, so load changes hit them alike and ratios stay meaningful.
 
 Rows: ``GridMaze-v0``, ``GridMaze-Random-v0`` (auto-reset ``env.step``), ``GridMaze-v0
 step_env only`` (no time limit, no auto-reset: the cost of auto-reset is its ratio to
@@ -77,8 +78,8 @@ def build(name: str) -> tuple[ResetFn, StepFn, int]:
     return (lambda k: env.reset(k, params)), step, env.num_actions
 
 
-def measure(name: str, num_envs: int, steps: int, seed: int = 0) -> dict[str, Any]:
-    """Compile and time one row; returns its JSON record."""
+def prepare(name: str, num_envs: int, steps: int, seed: int = 0) -> dict[str, Any]:
+    """Compile one row's rollout; returns a record with ``run()`` that times one execution."""
     reset, step, num_actions = build(name)
     vstep = jax.vmap(step)
 
@@ -101,20 +102,31 @@ def measure(name: str, num_envs: int, steps: int, seed: int = 0) -> dict[str, An
     t0 = time.perf_counter()
     compiled = jax.jit(rollout).lower(k_run, obs, state).compile()
     compile_s = time.perf_counter() - t0
-    run_s = []
-    for _ in range(3):
+
+    def run() -> float:
         t0 = time.perf_counter()
         jax.block_until_ready(compiled(k_run, obs, state))
-        run_s.append(time.perf_counter() - t0)
-    median = statistics.median(run_s)
-    return {
-        "env": name,
-        "num_envs": num_envs,
-        "steps": steps,
-        "compile_s": compile_s,
-        "run_s": run_s,
-        "steps_per_s": num_envs * steps / median,
-    }
+        return time.perf_counter() - t0
+
+    run()  # warm-up
+    return {"env": name, "num_envs": num_envs, "steps": steps, "compile_s": compile_s, "run": run}
+
+
+def measure_interleaved(names: list[str], num_envs: int, steps: int, rounds: int) -> list[dict]:
+    """Time every row ``rounds`` times in turn (row A, B, C, A, B, C, ...), so that a change of
+    machine load hits all rows alike and the ratios stay meaningful; median per row."""
+    prepared = [prepare(name, num_envs, steps) for name in names]
+    for _ in range(rounds):
+        for p in prepared:
+            p.setdefault("run_s", []).append(p["run"]())
+    rows = []
+    for p in prepared:
+        run_s = p.pop("run_s")
+        del p["run"]
+        rows.append(
+            {**p, "run_s": run_s, "steps_per_s": num_envs * steps / statistics.median(run_s)}
+        )
+    return rows
 
 
 def add_ratios(rows: list[dict[str, Any]]) -> None:
@@ -182,13 +194,14 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--num-envs", default="1,16,256,4096,16384", help="comma-separated")
     p.add_argument("--steps", type=int, default=200, help="scan length per row")
+    p.add_argument("--rounds", type=int, default=5, help="interleaved timed runs per row")
     p.add_argument("--out", type=Path, default=DEFAULT_OUT, help="JSON output path")
     p.add_argument("--envs", default=",".join(ALL_ENVS), help=f"comma-separated of {ALL_ENVS}")
     args = p.parse_args(argv)
     args.num_envs = [int(n) for n in args.num_envs.split(",")]
     args.envs = [e.strip() for e in args.envs.split(",") if e.strip()]
     unknown = [e for e in args.envs if e not in ALL_ENVS]
-    if unknown or args.steps < 1 or min(args.num_envs) < 1:
+    if unknown or args.steps < 1 or args.rounds < 1 or min(args.num_envs) < 1:
         p.error(f"unknown envs {unknown} (valid: {ALL_ENVS}), or steps/num_envs < 1")
     return args
 
@@ -206,21 +219,18 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             print(f"note: gymnax not importable ({e}); skipping {', '.join(gymnax_wanted)}")
             skipped = {g: f"import gymnax failed: {e}" for g in gymnax_wanted}
             envs = [e for e in envs if e not in GYMNAX_ENVS]
+    for name in [e for e in envs if e in GYMNAX_ENVS]:
+        try:  # a gymnax that imports but breaks on this jax
+            prepare(name, 1, 2)
+        except Exception as e:
+            print(f"note: {name} failed ({type(e).__name__}: {e}); skipping it")
+            skipped[name] = f"{type(e).__name__}: {e}"
+    envs = [e for e in envs if e not in skipped]
     rows = []
     for n in args.num_envs:
-        for name in envs:
-            if name in skipped:
-                continue
-            try:
-                row = measure(name, n, args.steps)
-            except Exception as e:  # a gymnax that imports but breaks on this jax
-                if name not in GYMNAX_ENVS:
-                    raise
-                print(f"note: {name} failed ({type(e).__name__}: {e}); skipping it")
-                skipped[name] = f"{type(e).__name__}: {e}"
-                continue
+        for row in measure_interleaved(envs, n, args.steps, args.rounds):
             print(
-                f"{name:28s} {n:6d} envs: compile {row['compile_s']:6.2f} s, "
+                f"{row['env']:28s} {n:6d} envs: compile {row['compile_s']:6.2f} s, "
                 f"{row['steps_per_s']:14,.0f} steps/s",
                 file=sys.stderr,
             )

@@ -117,6 +117,7 @@ class LayoutBank:
     goal_slots: jax.Array  # int32[L, P] indices into free_cells
     goal_distance: jax.Array  # int16[L, P, S, S] BFS steps to the goal, -1 where unreachable
     obstacle_cells: jax.Array  # int32[L, O, 2], padded by repeating the first obstacle
+    blocked_moves: jax.Array  # uint8[L, S, S]: bit a set if action a from the cell collides
 
     @property
     def num_layouts(self) -> int:
@@ -227,7 +228,13 @@ def build_bank(cfg: GridMazeConfig) -> LayoutBank:
         obstacle_cells,
         obstacle_cells[:, :1],
     )
+    walled = np.pad(obstacles, ((0, 0), (1, 1), (1, 1)), constant_values=True)
+    s = cfg.size
+    blocked_moves = np.zeros((num, s, s), np.uint8)
+    for a, (dr, dc) in enumerate(MOVES):
+        blocked_moves |= walled[:, 1 + dr : 1 + dr + s, 1 + dc : 1 + dc + s].astype(np.uint8) << a
     return LayoutBank(
+        blocked_moves=jnp.asarray(blocked_moves),
         obstacles=jnp.asarray(obstacles),
         free_cells=jnp.asarray(free_cells, jnp.int32),
         num_free=jnp.asarray(num_free, jnp.int32),
@@ -365,7 +372,7 @@ class GridMaze(Environment[GridMazeState, GridMazeParams]):
 
     def step_env(self, key, state: GridMazeState, action, params: GridMazeParams):
         target = state.pos + jnp.asarray(MOVES)[action]
-        blocked = self._blocked(params, state.layout, target)
+        blocked = ((self._moves_blocked(params, state) >> action) & 1).astype(bool)
         pos = jnp.where(blocked, state.pos, target)
         at_goal = jnp.logical_and(jnp.all(pos == state.goal), jnp.logical_not(blocked))
         r_goal = jnp.where(at_goal, params.goal_reward, 0.0)
@@ -384,6 +391,10 @@ class GridMaze(Environment[GridMazeState, GridMazeParams]):
         return self.get_obs(state, params), state, reward, at_goal | blocked, info
 
     # -- observation --------------------------------------------------------------
+    def _moves_blocked(self, params: GridMazeParams, state: GridMazeState) -> jax.Array:
+        """Bit a: whether action a collides (one gather from the precomputed table)."""
+        return params.bank.blocked_moves[state.layout, state.pos[0], state.pos[1]]
+
     def _blocked(self, params: GridMazeParams, layout: jax.Array, cell: jax.Array) -> jax.Array:
         """Whether ``cell`` (..., 2) of ``layout`` is off the grid or an obstacle."""
         inside = jnp.all((cell >= 0) & (cell < self.size), axis=-1)
@@ -400,7 +411,8 @@ class GridMaze(Environment[GridMazeState, GridMazeParams]):
             obs_cells = params.bank.obstacle_cells[state.layout]
             return jnp.concatenate([xy(state.pos), xy(state.goal), xy(obs_cells).ravel()])
         if mode == "onehot":
-            neighbours = self._blocked(params, state.layout, state.pos + jnp.asarray(MOVES))
+            bits = self._moves_blocked(params, state)
+            neighbours = (bits >> jnp.arange(4, dtype=jnp.uint8)) & 1
             return jnp.concatenate(
                 [
                     jax.nn.one_hot(state.pos[0], s),
