@@ -21,11 +21,7 @@ measured in the same run, otherwise with GridMaze-v0.
 from __future__ import annotations
 
 import argparse
-import datetime
-import importlib.metadata
-import json
 import os
-import platform
 import statistics
 import sys
 import time
@@ -37,6 +33,7 @@ import jax
 import jax.numpy as jnp
 
 import jaxnav
+from benchmarks.common import machine_info, write_results
 
 # (key, state, action) -> (obs, state, reward); one environment, vmapped by the benchmark
 StepFn = Callable[[jax.Array, Any, jax.Array], tuple[jax.Array, Any, jax.Array]]
@@ -169,27 +166,6 @@ def table(rows: list[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
-def machine_info() -> dict[str, Any]:
-    return {
-        "platform": platform.platform(),
-        "python": platform.python_version(),
-        "cpu_count": os.cpu_count(),
-        "jax_version": jax.__version__,
-        "backend": jax.default_backend(),
-        "devices": [str(d) for d in jax.devices()],
-        "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-        "loadavg_1m_at_start": os.getloadavg()[0] if hasattr(os, "getloadavg") else None,
-        "gymnax_version": _version("gymnax"),
-    }
-
-
-def _version(dist: str) -> str | None:
-    try:
-        return importlib.metadata.version(dist)
-    except importlib.metadata.PackageNotFoundError:
-        return None
-
-
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--num-envs", default="1,16,256,4096,16384", help="comma-separated")
@@ -252,9 +228,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "results": rows,
         "autoreset_cost": {str(n): c for n, c in cost.items()},
     }
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(result, indent=2) + "\n")
-    args.out.with_suffix(".md").write_text(md + "\n")
+    write_results(args.out, result, md)
     return result
 
 

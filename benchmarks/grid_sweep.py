@@ -15,15 +15,15 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import platform
 import time
 from pathlib import Path
 
 import jax
 import numpy as np
 
+from benchmarks.common import machine_info, write_results
 from jaxnav.config import TrainConfig
-from jaxnav.evaluate import run_episodes, summarize
+from jaxnav.evaluate import evaluate_seeds
 from jaxnav.train import Trainer
 
 
@@ -40,19 +40,7 @@ def run_variant(overrides: dict, seeds: int, eval_episodes: int, base: dict) -> 
     ts, metrics = jax.block_until_ready(train(keys))
     train_s = time.perf_counter() - t0
 
-    def evaluate_one(params):
-        policy = trainer.greedy_policy(params)
-        return run_episodes(
-            trainer.env,
-            trainer.env_params,
-            policy,
-            jax.random.key(12345),
-            eval_episodes,
-            trainer.config.env_kwargs.get("max_steps", 60),
-        )
-
-    episodes = jax.jit(jax.vmap(evaluate_one))(ts.params)
-    per_seed = [summarize(jax.tree.map(lambda x, i=i: x[i], episodes)) for i in range(seeds)]
+    per_seed = evaluate_seeds(trainer, ts.params, eval_episodes, seed=12345)
     curve = np.asarray(metrics["success_rate"]).mean(axis=0).round(3).tolist()
     return {
         "overrides": overrides,
@@ -76,29 +64,22 @@ def main(argv: list[str] | None = None) -> list[dict]:
     args = ap.parse_args(argv)
     base = json.loads(args.base)
     rows = []
-    print("| variant | success mean | success min | path ratio | compile s | train s |")
-    print("|---|---|---|---|---|---|")
+    lines = [
+        "| variant | success mean | success min | path ratio | compile s | train s |",
+        "|---|---|---|---|---|---|",
+    ]
+    print("\n".join(lines), flush=True)
     for name, spec in args.variant:
         r = run_variant(json.loads(spec), args.seeds, args.eval_episodes, base)
         r["name"] = name
         rows.append(r)
-        print(
+        lines.append(
             f"| {name} | {r['success_mean']:.3f} | {r['success_min']:.3f} | "
-            f"{r['path_ratio_mean']:.3f} | {r['compile_s']:.1f} | {r['train_s']:.1f} |",
-            flush=True,
+            f"{r['path_ratio_mean']:.3f} | {r['compile_s']:.1f} | {r['train_s']:.1f} |"
         )
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    meta = {
-        "machine": platform.platform(),
-        "backend": jax.default_backend(),
-        "devices": [d.device_kind for d in jax.devices()],
-        "jax": jax.__version__,
-        "date": time.strftime("%Y-%m-%d %H:%M"),
-        "base": base,
-        "seeds": args.seeds,
-    }
-    out.write_text(json.dumps({"meta": meta, "rows": rows}, indent=1))
+        print(lines[-1], flush=True)
+    meta = {"machine": machine_info(), "base": base, "seeds": args.seeds}
+    write_results(Path(args.out), {"meta": meta, "rows": rows}, "\n".join(lines))
     return rows
 
 

@@ -39,7 +39,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import os
 import statistics
 import sys
@@ -51,7 +50,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from benchmarks.env_throughput import machine_info
+from benchmarks.common import machine_info, write_results
 from jaxnav.agents import dqn
 from jaxnav.config import MAX_STEPS, TrainConfig
 from jaxnav.train import Trainer, TrainState
@@ -331,9 +330,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "goal_ratio": GOAL_RATIO,
         "results": rows,
     }
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(result, indent=2) + "\n")
-    args.out.with_suffix(".md").write_text(md + "\n")
+    write_results(args.out, result, md)
     return result
 
 

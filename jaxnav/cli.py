@@ -21,7 +21,7 @@ import numpy as np
 
 from jaxnav import run_dir
 from jaxnav.config import TrainConfig
-from jaxnav.evaluate import random_policy, run_episodes, summarize
+from jaxnav.evaluate import evaluate_seeds, mean_of
 from jaxnav.registration import make, registered_envs
 from jaxnav.train import METRIC_NAMES, Trainer
 
@@ -175,27 +175,6 @@ class Progress:
         dt = np.diff(np.asarray(times))
         interval = self.config.iterations_per_log * self.config.num_envs * self.config.num_seeds
         return interval / dt
-
-
-def evaluate_seeds(
-    trainer: Trainer, params: Any, episodes: int, seed: int, policy: str = "trained"
-) -> list[dict[str, float]]:
-    """Greedy (or random) evaluation of each seed's parameters on the same fresh episodes."""
-    env, env_params = trainer.env, trainer.env_params
-    key = jax.random.key(seed)
-    max_steps = int(env_params.max_steps_in_episode)
-
-    def one(p):
-        pol = trainer.greedy_policy(p) if policy == "trained" else random_policy(env.num_actions)
-        return run_episodes(env, env_params, pol, key, episodes, max_steps)
-
-    out = jax.jit(jax.vmap(one))(params)
-    n = jax.tree.leaves(params)[0].shape[0]
-    return [summarize(jax.tree.map(lambda x, i=i: x[i], out)) for i in range(n)]
-
-
-def mean_of(rows: Sequence[dict[str, float]]) -> dict[str, float]:
-    return {k: float(np.mean([r[k] for r in rows])) for k in rows[0]}
 
 
 def enable_compilation_cache() -> None:

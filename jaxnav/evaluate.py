@@ -2,12 +2,17 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING, Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from jaxnav.environment import Environment, EnvParams
+
+if TYPE_CHECKING:
+    from jaxnav.train import Trainer
 
 Policy = Callable[[jax.Array, jax.Array], jax.Array]  # (key, obs[N, D]) -> action[N]
 
@@ -94,6 +99,27 @@ def evaluate(
     run = jax.jit(run_episodes, static_argnums=(0, 2, 4, 5))
     max_steps = int(params.max_steps_in_episode)
     return summarize(run(env, params, policy, key, num_episodes, max_steps))
+
+
+def evaluate_seeds(
+    trainer: Trainer, params: Any, episodes: int, seed: int, policy: str = "trained"
+) -> list[dict[str, float]]:
+    """Greedy (or random) evaluation of each seed's parameters on the same fresh episodes."""
+    env, env_params = trainer.env, trainer.env_params
+    key = jax.random.key(seed)
+    max_steps = int(env_params.max_steps_in_episode)
+
+    def one(p):
+        pol = trainer.greedy_policy(p) if policy == "trained" else random_policy(env.num_actions)
+        return run_episodes(env, env_params, pol, key, episodes, max_steps)
+
+    out = jax.jit(jax.vmap(one))(params)
+    n = jax.tree.leaves(params)[0].shape[0]
+    return [summarize(jax.tree.map(lambda x, i=i: x[i], out)) for i in range(n)]
+
+
+def mean_of(rows: Sequence[dict[str, float]]) -> dict[str, float]:
+    return {k: float(np.mean([r[k] for r in rows])) for k in rows[0]}
 
 
 if __name__ == "__main__":

@@ -34,3 +34,39 @@ def test_env_throughput_smoke(tmp_path: Path) -> None:
         assert r["baseline"] == "GridMaze-v0" and r["ratio"] > 0
     assert set(data["autoreset_cost"]) == {"1", "4"}
     assert out.with_suffix(".md").read_text().startswith("| env |")
+
+
+def test_grid_sweep_smoke(tmp_path: Path) -> None:
+    from benchmarks import grid_sweep
+
+    out = tmp_path / "sweep.json"
+    tiny = {
+        "env_kwargs": {"size": 5},
+        "hidden_sizes": [16],
+        "total_timesteps": 2000,
+        "learning_starts": 500,
+        "log_interval": 500,
+        "buffer_size": 1000,
+        "batch_size": 16,
+        "num_envs": 4,  # 500 / 4 iterations per log: exactly 4 logs
+    }
+    rows = grid_sweep.main(
+        [
+            "--seeds",
+            "2",
+            "--eval-episodes",
+            "20",
+            "--out",
+            str(out),
+            "--variant",
+            "tiny",
+            json.dumps(tiny),
+        ]
+    )
+    data = json.loads(out.read_text())
+    assert [r["name"] for r in data["rows"]] == ["tiny"] == [r["name"] for r in rows]
+    row = data["rows"][0]
+    assert len(row["per_seed"]) == 2 and 0.0 <= row["success_min"] <= row["success_mean"] <= 1.0
+    assert len(row["train_success_curve"]) == 4
+    assert data["meta"]["machine"]["jax_version"]
+    assert out.with_suffix(".md").read_text().count("\n") == 3
