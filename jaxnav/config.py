@@ -23,7 +23,7 @@ class TrainConfig:
     env_kwargs: dict[str, Any] = dataclasses.field(default_factory=dict)
     seed: int = 0
     num_seeds: int = 1
-    total_timesteps: int = 320_000
+    total_timesteps: int = 240_000
     num_envs: int = 16
     # network and loss
     hidden_sizes: tuple[int, ...] = (512, 256, 128, 64)
@@ -46,7 +46,7 @@ class TrainConfig:
     tau: float = 1.0
     eps_start: float = 1.0
     eps_end: float = 0.05
-    eps_decay_steps: int = 200_000
+    eps_decay_steps: int = 100_000
     # bookkeeping
     log_interval: int = 16_000
     eval_episodes: int = 1000

@@ -115,7 +115,7 @@ def test_cli_process_exit_code_and_help():
     assert helped.returncode == 0
     for flag in ("--env", "--num-seeds", "--total-timesteps", "--gamma", "--env-arg", "--out"):
         assert flag in helped.stdout
-    assert "default: 320000" in helped.stdout
+    assert "default: 240000" in helped.stdout
     missing = subprocess.run(
         [sys.executable, "-m", "jaxnav.evaluate", "/nonexistent/run"],
         capture_output=True,
