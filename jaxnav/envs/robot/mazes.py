@@ -1,0 +1,719 @@
+"""Maze layouts for the continuous robot environments: grids of wall cells, turned into boxes.
+
+A maze is a grid of cells (``#`` wall, ``.`` free) of ``cell_size`` metres. The arena is the
+grid's rectangle, ``cols * cell_size`` wide and ``rows * cell_size`` high, with x to the right,
+y up and the origin at the arena's lower-left corner; row 0 is the *top* line of the text.
+
+Simulators want walls as a fixed number of boxes per environment (batched model fields), so
+``Maze.walls(num_slots)`` turns the wall cells into a few axis-aligned rectangles (runs of
+cells along one axis, then identical runs merged along the other; whichever order gives fewer
+boxes) plus 4 boundary walls just outside the arena. Slots left over are *parked*: inactive,
+far outside the arena and tiny, so code that ignores ``Walls.active`` never touches them.
+
+Text format (``load_maze(path)``, ``parse_maze(text)``)::
+
+    ; a comment (any line whose first non-blank character is ';')
+    cell_size: 0.5
+    #.....#.
+    #.##..#.
+    S.#...#G
+
+An optional ``cell_size: <metres>`` header (default 1.0) comes before the grid; the grid is
+rows of ``#`` (wall), ``.`` (free), ``S`` (the start, a free cell) and ``G`` (the goal, a free
+cell), at most one ``S`` and one ``G``. Blank lines may come before and after the grid, not
+inside it; trailing whitespace is ignored. A malformed file raises ``MazeFileError`` (a
+``ValueError``) whose message starts with ``path:line:column:`` (1-based; the column, or the
+line, is left out where none applies).
+
+Robots and goals are placed at *placement cells*: the free cells connected to ``S`` (or to
+``G``, or the largest connected free region when the file has neither), so a random start and
+goal are always joined by a path. A cell centre is ``cell_size / 2`` from the nearest wall
+cell along the axes, so a robot of radius below that fits at any placement centre.
+
+Built-in layouts, in the spirit of the paper's Fig. 5 (a 10 m square arena): ``SIMPLE`` (a room
+with two wall segments) and ``COMPLEX`` (a maze of 1 m corridors). ``random_maze_bank`` draws
+random layouts (wall segments, then pockets filled), and ``stack_mazes`` batches any list of
+mazes into arrays a JAX reset can index (``MazeBank``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+import os
+from collections import deque
+from collections.abc import Sequence
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+WALL, FREE, START, GOAL = "#", ".", "S", "G"
+CELL_CHARS = (WALL, FREE, START, GOAL)
+NUM_BOUNDARY = 4
+# Boundary walls lie outside the arena; their thickness only matters against tunnelling, so
+# they are thick (2 m) to stop a fast robot stepping through them in one kinematic step.
+BOUNDARY_HALF_THICKNESS = 1.0
+# Parked (unused) slots: far outside any arena and tiny.
+PARKED_CENTER = (-1000.0, -1000.0)
+PARKED_HALF_SIZE = (1e-3, 1e-3)
+
+Cell = tuple[int, int]  # (row, col), row 0 at the top
+
+
+class MazeFileError(ValueError):
+    """A malformed maze: ``"{path}:{line}:{col}: {what}"`` (line and col when they apply)."""
+
+    def __init__(self, path: str, what: str, line: int | None = None, col: int | None = None):
+        self.path, self.what, self.line, self.col = path, what, line, col
+        where = str(path)
+        if line is not None:
+            where += f":{line}"
+            if col is not None:
+                where += f":{col}"
+        super().__init__(f"{where}: {what}")
+
+
+# ------------------------------------------------------------------------------ walls
+@struct.dataclass
+class Walls:
+    """Axis-aligned wall boxes in fixed slots (any leading batch axes before the slot axis)."""
+
+    center: jax.Array  # float32[..., W, 2] box centre (x, y), metres
+    half_size: jax.Array  # float32[..., W, 2] half width, half height
+    active: jax.Array  # bool[..., W]; inactive slots are parked far away
+
+    @property
+    def num_slots(self) -> int:
+        return self.center.shape[-2]
+
+    def min_half_size(self) -> float:
+        """The thinnest active wall's smaller half-size (host side, over every batch entry);
+        parked slots are left out, as their tiny size would mislead e.g. substep counts."""
+        h = np.asarray(self.half_size).min(axis=-1)
+        return float(h[np.asarray(self.active)].min())
+
+
+@struct.dataclass
+class MazeBank:
+    """A batch of mazes (leading axis B) for per-environment layouts; a reset picks a maze and
+    two placement cells by index. Mazes of one bank share rows, cols and cell size."""
+
+    walls: Walls  # [B, W]
+    free_xy: jax.Array  # float32[B, F, 2] placement-cell centres, padded with the first one
+    free_cells: jax.Array  # int32[B, F, 2] the same cells as (row, col), padded alike
+    num_free: jax.Array  # int32[B] valid entries of free_xy
+    grid: jax.Array  # bool[B, rows, cols] True = wall
+    start_xy: jax.Array  # float32[B, 2] the S cell's centre (free_xy[:, 0] when none)
+    has_start: jax.Array  # bool[B]
+    goal_xy: jax.Array  # float32[B, 2] the G cell's centre (free_xy[:, 0] when none)
+    has_goal: jax.Array  # bool[B]
+    cell_size: float = struct.field(pytree_node=False, default=1.0)
+
+    @property
+    def num_mazes(self) -> int:
+        return self.free_xy.shape[0]
+
+    @property
+    def size_m(self) -> tuple[float, float]:
+        """Arena (width, height) in metres."""
+        rows, cols = self.grid.shape[1:]
+        return cols * self.cell_size, rows * self.cell_size
+
+
+# ------------------------------------------------------------------------------- maze
+@dataclasses.dataclass(frozen=True, eq=False)  # eq=False: arrays have no truth value
+class Maze:
+    """A maze layout on the host. ``grid`` is read-only bool (rows, cols), True = wall.
+
+    ``lines`` gives the text line of each grid row (for error messages); ``None`` means row
+    ``r`` is line ``r + 1``.
+    """
+
+    grid: np.ndarray
+    cell_size: float = 1.0
+    start: Cell | None = None
+    goal: Cell | None = None
+    name: str = "<maze>"
+    lines: tuple[int, ...] | None = None
+
+    def __post_init__(self) -> None:
+        grid = np.array(self.grid, dtype=bool)  # a private copy, frozen below
+        if grid.ndim != 2 or grid.size == 0:
+            raise ValueError(f"{self.name}: grid must be a non-empty 2-D array, got {grid.shape}")
+        grid.setflags(write=False)
+        object.__setattr__(self, "grid", grid)
+        cs = self.cell_size
+        if not _is_number(cs) or not math.isfinite(cs) or cs <= 0:
+            raise ValueError(f"{self.name}: cell_size={cs!r}: must be a positive number (metres)")
+        object.__setattr__(self, "cell_size", float(cs))
+        for label in ("start", "goal"):
+            cell = getattr(self, label)
+            if cell is None:
+                continue
+            r, c = (int(v) for v in cell)
+            if not (0 <= r < grid.shape[0] and 0 <= c < grid.shape[1]) or grid[r, c]:
+                raise ValueError(f"{self.name}: {label}={cell!r} is not a free cell of the grid")
+            object.__setattr__(self, label, (r, c))
+        if self.lines is not None and len(self.lines) != grid.shape[0]:
+            raise ValueError(
+                f"{self.name}: lines has {len(self.lines)} entries for {grid.shape[0]} rows"
+            )
+
+    # -- geometry -----------------------------------------------------------------
+    @property
+    def rows(self) -> int:
+        return self.grid.shape[0]
+
+    @property
+    def cols(self) -> int:
+        return self.grid.shape[1]
+
+    @property
+    def size_m(self) -> tuple[float, float]:
+        """Arena (width, height) in metres."""
+        return self.cols * self.cell_size, self.rows * self.cell_size
+
+    def cell_center(self, row: int, col: int) -> tuple[float, float]:
+        """Centre (x, y) in metres of cell (row, col); row 0 is the top line of the text."""
+        return (col + 0.5) * self.cell_size, (self.rows - 1 - row + 0.5) * self.cell_size
+
+    def cell_centers(self, cells: np.ndarray) -> np.ndarray:
+        """float32[..., 2] centres (x, y) of int cells[..., 2] (row, col)."""
+        cells = np.asarray(cells)
+        x = (cells[..., 1] + 0.5) * self.cell_size
+        y = (self.rows - 1 - cells[..., 0] + 0.5) * self.cell_size
+        return np.stack([x, y], axis=-1).astype(np.float32)
+
+    def cell_at(self, x: float, y: float) -> Cell:
+        """The (row, col) containing point (x, y), clipped to the grid."""
+        col = min(max(int(math.floor(x / self.cell_size)), 0), self.cols - 1)
+        row = self.rows - 1 - min(max(int(math.floor(y / self.cell_size)), 0), self.rows - 1)
+        return row, col
+
+    # -- connectivity -------------------------------------------------------------
+    def free_cells(self) -> np.ndarray:
+        """int32[F, 2] all free cells (row, col) in reading order."""
+        return np.argwhere(~self.grid).astype(np.int32)
+
+    def bfs_distances(self, source: Cell) -> np.ndarray:
+        """int32[rows, cols] 4-neighbour steps from ``source``; -1 at walls and unreachable."""
+        dist = np.full(self.grid.shape, -1, np.int32)
+        r0, c0 = source
+        if self.grid[r0, c0]:
+            return dist
+        dist[r0, c0] = 0
+        queue = deque([(r0, c0)])
+        while queue:
+            r, c = queue.popleft()
+            for nr, nc in ((r - 1, c), (r + 1, c), (r, c - 1), (r, c + 1)):
+                if (
+                    0 <= nr < self.rows
+                    and 0 <= nc < self.cols
+                    and not self.grid[nr, nc]
+                    and dist[nr, nc] < 0
+                ):
+                    dist[nr, nc] = dist[r, c] + 1
+                    queue.append((nr, nc))
+        return dist
+
+    def connected(self, a: Cell, b: Cell) -> bool:
+        """Whether free cells ``a`` and ``b`` (row, col) are joined by a 4-neighbour path."""
+        return bool(self.bfs_distances(a)[b[0], b[1]] >= 0)
+
+    def placement_cells(self) -> np.ndarray:
+        """int32[F, 2] cells where a robot or goal may be placed, in reading order: the free
+        region of S, else of G, else the largest free region (first in reading order on a tie),
+        so any two placement cells are connected."""
+        return self._placement.copy()
+
+    @functools.cached_property  # the grid is immutable; banks ask for this per maze
+    def _placement(self) -> np.ndarray:
+        labels = _region_labels(self.grid)
+        anchor = self.start or self.goal
+        if anchor is None:
+            anchor = _largest_region_cell(self.grid)
+        return np.argwhere(labels == labels[anchor]).astype(np.int32)
+
+    # -- boxes --------------------------------------------------------------------
+    def wall_boxes(self) -> np.ndarray:
+        """int32[K, 4] (row0, col0, row1, col1), inclusive, rectangles of wall cells that cover
+        the wall cells exactly, without overlap, sorted in reading order of their top-left
+        cell. Greedy: runs along rows merged down identical runs, or the transpose, whichever
+        gives fewer boxes (corridor mazes have both long horizontal and vertical walls)."""
+        return self._boxes.copy()
+
+    @functools.cached_property  # the grid is immutable; slots checks and walls both need it
+    def _boxes(self) -> np.ndarray:
+        by_rows = _merge_runs(self.grid)
+        by_cols = _merge_runs(self.grid.T)[:, [1, 0, 3, 2]]
+        boxes = by_rows if len(by_rows) <= len(by_cols) else by_cols
+        order = np.lexsort((boxes[:, 1], boxes[:, 0])) if len(boxes) else np.zeros(0, int)
+        return boxes[order].astype(np.int32).reshape(-1, 4)
+
+    @property
+    def num_boxes(self) -> int:
+        """Wall slots this maze needs: the boundary's 4 plus its internal boxes."""
+        return NUM_BOUNDARY + len(self.wall_boxes())
+
+    def walls(self, num_slots: int) -> Walls:
+        """The maze's walls in ``num_slots`` slots: 4 boundary walls first, then the internal
+        boxes, then parked slots. ``MazeFileError`` (a ``ValueError``) if they do not fit."""
+        center, half, active = _walls_np(self, num_slots)
+        return Walls(
+            center=jnp.asarray(center), half_size=jnp.asarray(half), active=jnp.asarray(active)
+        )
+
+    def line_of(self, row: int) -> int:
+        """Text line of grid row ``row`` (1-based)."""
+        return self.lines[row] if self.lines is not None else row + 1
+
+    def to_text(self) -> str:
+        """The maze in the text format; ``parse_maze(m.to_text())`` gives the same maze."""
+        chars = np.where(self.grid, WALL, FREE).astype(object)
+        if self.start is not None:
+            chars[self.start] = START
+        if self.goal is not None:
+            chars[self.goal] = GOAL
+        rows = "\n".join("".join(r) for r in chars)
+        return f"cell_size: {self.cell_size!r}\n{rows}\n"
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
+
+
+def _merge_runs(grid: np.ndarray) -> np.ndarray:
+    """Rectangles (r0, c0, r1, c1): maximal runs of True per row, a run extended downwards
+    while the next row has the identical run."""
+    boxes: list[tuple[int, int, int, int]] = []
+    open_runs: dict[tuple[int, int], int] = {}  # (c0, c1) -> first row
+    rows = grid.shape[0]
+    for r in range(rows + 1):
+        runs = _runs(grid[r]) if r < rows else []
+        still_open = {}
+        for run in runs:
+            still_open[run] = open_runs.pop(run, r)
+        for (c0, c1), r0 in open_runs.items():
+            boxes.append((r0, c0, r - 1, c1))
+        open_runs = still_open
+    return np.array(boxes, dtype=np.int32).reshape(-1, 4)
+
+
+def _runs(row: np.ndarray) -> list[tuple[int, int]]:
+    """Maximal runs of True in a 1-D bool array as inclusive (start, end)."""
+    padded = np.concatenate([[False], row, [False]]).astype(np.int8)
+    edges = np.flatnonzero(np.diff(padded))
+    return [(int(a), int(b) - 1) for a, b in zip(edges[::2], edges[1::2], strict=True)]
+
+
+def _largest_region_cell(grid: np.ndarray) -> Cell:
+    """A cell of the largest 4-connected free region (ties: the region met first in reading
+    order); ``ValueError`` if there is no free cell."""
+    labels = _region_labels(grid)
+    if not labels.any():
+        raise ValueError("the maze has no free cell")
+    best = int(np.argmax(np.bincount(labels.ravel())[1:])) + 1  # argmax: first on a tie
+    r, c = np.argwhere(labels == best)[0]
+    return int(r), int(c)
+
+
+def _region_labels(grid: np.ndarray) -> np.ndarray:
+    """int32[rows, cols]: 4-connected free regions numbered 1, 2, ... in reading order of
+    their first cell, 0 at walls. A plain flood fill: each cell is visited once, which beats
+    array-wide label propagation on the small grids used here."""
+    rows, cols = grid.shape
+    wall = grid.ravel().tolist()
+    labels = [0] * (rows * cols)
+    n = 0
+    for seed in range(rows * cols):
+        if wall[seed] or labels[seed]:
+            continue
+        n += 1
+        labels[seed] = n
+        stack = [seed]
+        while stack:
+            i = stack.pop()
+            r, c = divmod(i, cols)
+            for j, ok in (
+                (i - cols, r > 0),
+                (i + cols, r < rows - 1),
+                (i - 1, c > 0),
+                (i + 1, c < cols - 1),
+            ):
+                if ok and not wall[j] and not labels[j]:
+                    labels[j] = n
+                    stack.append(j)
+    return np.array(labels, np.int32).reshape(rows, cols)
+
+
+def check_slots(maze: Maze, num_slots: int) -> None:
+    """``MazeFileError`` naming the maze (its file) and the first box that does not fit when
+    its walls need more than ``num_slots`` slots."""
+    if isinstance(num_slots, bool) or not isinstance(num_slots, (int, np.integer)):
+        raise ValueError(f"num_slots={num_slots!r}: must be an integer")
+    if num_slots < NUM_BOUNDARY:
+        raise ValueError(f"num_slots={num_slots}: must be at least {NUM_BOUNDARY} (the boundary)")
+    boxes = maze.wall_boxes()
+    room = num_slots - NUM_BOUNDARY
+    if len(boxes) > room:
+        r0, c0 = int(boxes[room, 0]), int(boxes[room, 1])
+        raise MazeFileError(
+            maze.name,
+            f"too many walls for {num_slots} wall slots: the maze needs {NUM_BOUNDARY + len(boxes)}"
+            f" boxes ({NUM_BOUNDARY} boundary + {len(boxes)} internal) and the wall box starting"
+            " here is the first that does not fit; merge walls into longer straight runs or use"
+            " more slots",
+            maze.line_of(r0),
+            c0 + 1,
+        )
+
+
+def _walls_np(maze: Maze, num_slots: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    check_slots(maze, num_slots)
+    cs, (width, height), t = maze.cell_size, maze.size_m, BOUNDARY_HALF_THICKNESS
+    # left, right, bottom, top; each spans the corners, so they overlap there and no seam
+    # (a face shared by two boxes) is left for a point or ray to slip through
+    center = [(-t, height / 2), (width + t, height / 2), (width / 2, -t), (width / 2, height + t)]
+    side, cap = (t, height / 2 + 2 * t), (width / 2 + 2 * t, t)
+    half = [side, side, cap, cap]
+    for r0, c0, r1, c1 in maze.wall_boxes():
+        center.append(((c0 + c1 + 1) / 2 * cs, (2 * maze.rows - r0 - r1 - 1) / 2 * cs))
+        half.append(((c1 - c0 + 1) / 2 * cs, (r1 - r0 + 1) / 2 * cs))
+    n = len(center)
+    center += [PARKED_CENTER] * (num_slots - n)
+    half += [PARKED_HALF_SIZE] * (num_slots - n)
+    active = np.arange(num_slots) < n
+    return np.array(center, np.float32), np.array(half, np.float32), active
+
+
+# -------------------------------------------------------------------------- text format
+def load_maze(path: str | os.PathLike[str], num_slots: int | None = None) -> Maze:
+    """Read a maze file (format in the module docstring); ``MazeFileError`` naming the file,
+    line and column if it is unreadable or malformed, or (with ``num_slots``) if its walls do
+    not fit the slots."""
+    name = os.fspath(path)
+    try:
+        with open(name, "rb") as f:
+            data = f.read()
+    except OSError as e:
+        raise MazeFileError(name, f"cannot read the maze file: {e.strerror or e}") from e
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as e:
+        line = data.count(b"\n", 0, e.start) + 1
+        col = e.start - (data.rfind(b"\n", 0, e.start) + 1) + 1
+        raise MazeFileError(name, "not UTF-8 text", line, col) from e
+    return parse_maze(text, name=name, num_slots=num_slots)
+
+
+def parse_maze(text: str, name: str = "<string>", num_slots: int | None = None) -> Maze:
+    """Parse a maze from text (format in the module docstring); errors as ``load_maze``."""
+
+    def fail(what: str, line: int | None = None, col: int | None = None) -> MazeFileError:
+        return MazeFileError(name, what, line, col)
+
+    cell_size, cell_size_line = 1.0, None
+    rows: list[tuple[int, str]] = []  # (line number, row text)
+    blank_after_grid = None
+    for lineno, raw in enumerate(text.split("\n"), start=1):
+        line = raw.rstrip()  # also drops the '\r' of CRLF files
+        stripped = line.lstrip()
+        if stripped.startswith(";"):
+            continue
+        if not stripped:
+            if rows and blank_after_grid is None:
+                blank_after_grid = lineno
+            continue
+        if blank_after_grid is not None:
+            raise fail(
+                "blank line inside the grid (blank lines may only come before or after it)",
+                blank_after_grid,
+            )
+        if ":" in line:  # a header; grid rows never contain ':'
+            key, _, value = line.partition(":")
+            if rows:
+                raise fail("header after the grid started; headers come first", lineno, 1)
+            if key.strip() != "cell_size":
+                raise fail(
+                    f"unknown header {key.strip()!r}; the only header is 'cell_size: <metres>'",
+                    lineno,
+                    len(key) - len(key.lstrip()) + 1,
+                )
+            if cell_size_line is not None:
+                raise fail(f"second cell_size (first on line {cell_size_line})", lineno, 1)
+            col = len(key) + 2 + len(value) - len(value.lstrip())
+            cell_size = _parse_cell_size(value.strip(), fail, lineno, col)
+            cell_size_line = lineno
+            continue
+        rows.append((lineno, line))
+    if not rows:
+        raise fail("no maze grid: expected rows of '#' (wall), '.' (free), 'S' and 'G'")
+
+    width = len(rows[0][1])
+    marks: dict[str, tuple[int, int, int]] = {}  # 'S'/'G' -> (row, line, col)
+    for r, (lineno, line) in enumerate(rows):
+        for c, ch in enumerate(line[:width]):
+            if ch not in CELL_CHARS:
+                raise fail(
+                    f"unknown character {ch!r}; expected '#' (wall), '.' (free), 'S' (start) "
+                    "or 'G' (goal)",
+                    lineno,
+                    c + 1,
+                )
+            if ch in (START, GOAL):
+                what = "start 'S'" if ch == START else "goal 'G'"
+                if ch in marks:
+                    _, first_line, first_col = marks[ch]
+                    raise fail(
+                        f"second {what} (the first is at line {first_line}, column {first_col})",
+                        lineno,
+                        c + 1,
+                    )
+                marks[ch] = (r, lineno, c + 1)
+        if len(line) != width:
+            raise fail(
+                f"ragged row: {len(line)} cells, but the first row (line {rows[0][0]}) has {width}",
+                lineno,
+                min(len(line), width) + 1,
+            )
+
+    grid = np.array([[ch == WALL for ch in line] for _, line in rows], dtype=bool)
+    lines = tuple(lineno for lineno, _ in rows)
+    cells = {k: (r, int(col) - 1) for k, (r, _, col) in marks.items()}
+    maze = Maze(grid, cell_size, cells.get(START), cells.get(GOAL), name, lines)
+
+    first_line = rows[0][0]
+    num_free = int((~grid).sum())
+    if num_free == 0:
+        raise fail("no free cell: every cell is a wall '#'", first_line)
+    if num_free < 2:
+        raise fail("only one free cell; a start and a goal need at least 2", first_line)
+    if START in marks and GOAL in marks and not maze.connected(cells[START], cells[GOAL]):
+        _, sl, sc = marks[START]
+        _, gl, gc = marks[GOAL]
+        raise fail(
+            f"no path from the start 'S' (line {sl}, column {sc}) to the goal 'G' (line {gl}, "
+            f"column {gc})",
+            sl,
+            sc,
+        )
+    if len(maze.placement_cells()) < 2:
+        if START in marks or GOAL in marks:
+            k = START if START in marks else GOAL
+            _, kl, kc = marks[k]
+            what = "start 'S'" if k == START else "goal 'G'"
+            raise fail(f"the {what} is walled in: no other free cell is reachable from it", kl, kc)
+        raise fail("no two free cells are connected; a start and a goal need a path", first_line)
+    if num_slots is not None:
+        check_slots(maze, num_slots)
+    return maze
+
+
+def _parse_cell_size(value: str, fail: Any, line: int, col: int) -> float:
+    try:
+        v = float(value)
+    except ValueError:
+        raise fail(f"cell_size {value!r} is not a number (metres)", line, col) from None
+    if not math.isfinite(v) or v <= 0:
+        raise fail(f"cell_size {value!r} must be a positive number of metres", line, col)
+    return v
+
+
+# ----------------------------------------------------------------------------- built-ins
+# A 10 m x 10 m room with two wall segments, from opposite sides: an S-shaped route.
+SIMPLE = """\
+; RobotSimple: a 10 m x 10 m room with two wall segments
+cell_size: 1.0
+..........
+..........
+..........
+#######...
+..........
+..........
+...#######
+..........
+..........
+..........
+"""
+
+# A randomized depth-first maze on 7 x 7 rooms of 2 x 2 cells, plus 4 extra openings for
+# loops (drawn once and frozen here): many corridors and dead ends, 16 internal wall boxes.
+COMPLEX = """\
+; RobotComplex: a 10 m x 10 m maze of 1 m corridors (2 cells) between 0.5 m walls, with loops
+cell_size: 0.5
+..#........#........
+..#........#........
+..#..####..#..####..
+...........#.....#..
+...........#.....#..
+..#..#..#..#..#..#..
+..#..#..#..#.....#..
+..#..#..#..#.....#..
+..#..#..#..####..#..
+..#.....#........#..
+..#.....#........#..
+..################..
+.................#..
+.................#..
+###############..#..
+..............#..#..
+..............#..#..
+..#..##########..#..
+..#.................
+..#.................
+"""
+
+BUILTIN_MAZES = {"simple": SIMPLE, "complex": COMPLEX}
+
+
+@functools.cache  # mazes are immutable, so one parse serves every caller
+def builtin_maze(name: str) -> Maze:
+    """The built-in maze ``"simple"`` or ``"complex"``."""
+    if name not in BUILTIN_MAZES:
+        raise ValueError(f"unknown built-in maze {name!r}; choices: {', '.join(BUILTIN_MAZES)}")
+    return parse_maze(BUILTIN_MAZES[name], name=name)
+
+
+# --------------------------------------------------------------------------- random mazes
+def random_maze_bank(
+    num: int,
+    rows: int = 10,
+    cols: int = 10,
+    cell_size: float = 1.0,
+    seed: int = 0,
+    wall_density: float = 0.2,
+    num_slots: int | None = None,
+    max_segment: int = 4,
+    max_tries: int = 200,
+) -> list[Maze]:
+    """``num`` random mazes whose free cells are all connected.
+
+    Each maze gets straight wall segments (horizontal or vertical, 1..``max_segment`` cells,
+    random positions) until ``round(wall_density * rows * cols)`` cells are walls; free cells
+    outside the largest connected region are then filled. Segments rather than single cells
+    look like walls and need few boxes. A draw is redone (up to ``max_tries`` times) when the
+    filling overshoots the density by more than 0.1, fewer than 2 cells stay free, or, with
+    ``num_slots``, the walls do not fit the slots. Maze ``i`` depends only on (seed, i), so a
+    larger bank extends a smaller one.
+    """
+    _check_int("num", num, 1)
+    _check_int("rows", rows, 1)
+    _check_int("cols", cols, 1)
+    _check_int("max_segment", max_segment, 1)
+    _check_int("max_tries", max_tries, 1)
+    _check_int("seed", seed, 0)
+    if rows * cols < 2:
+        raise ValueError(f"rows={rows}, cols={cols}: a maze needs at least 2 cells")
+    if not _is_number(cell_size) or not math.isfinite(cell_size) or cell_size <= 0:
+        raise ValueError(f"cell_size={cell_size!r}: must be a positive number (metres)")
+    if not _is_number(wall_density) or not 0.0 <= wall_density < 1.0:
+        raise ValueError(f"wall_density={wall_density!r}: must be a number in [0, 1)")
+    if num_slots is not None:
+        check_slots(Maze(np.zeros((rows, cols), bool), cell_size), num_slots)  # validates it
+    target = round(wall_density * rows * cols)
+    mazes = []
+    for i in range(num):
+        rng = np.random.default_rng([seed, i])
+        for _ in range(max_tries):
+            grid = _fill_pockets(_random_segments(rng, rows, cols, target, max_segment))
+            if (~grid).sum() < 2 or grid.mean() > wall_density + 0.1:
+                continue
+            maze = Maze(grid, cell_size, name=f"random[{seed}:{i}]")
+            if num_slots is None or maze.num_boxes <= num_slots:
+                break
+        else:
+            raise ValueError(
+                f"random_maze_bank: no acceptable maze in {max_tries} draws for rows={rows}, "
+                f"cols={cols}, wall_density={wall_density}, num_slots={num_slots}; lower the "
+                "density or allow more slots"
+            )
+        mazes.append(maze)
+    return mazes
+
+
+def _check_int(name: str, v: Any, lo: int) -> None:
+    if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
+        raise ValueError(f"{name}={v!r}: must be an integer >= {lo}")
+
+
+def _random_segments(
+    rng: np.random.Generator, rows: int, cols: int, target: int, max_segment: int
+) -> np.ndarray:
+    grid = np.zeros((rows, cols), bool)
+    while grid.sum() < target:
+        length = int(rng.integers(1, max_segment + 1))
+        r, c = int(rng.integers(rows)), int(rng.integers(cols))
+        dr, dc = (0, 1) if rng.random() < 0.5 else (1, 0)  # horizontal or vertical
+        cells = [(r + k * dr, c + k * dc) for k in range(length)]
+        for rr, cc in cells:
+            if rr < rows and cc < cols and grid.sum() < target:  # stop exactly at the target
+                grid[rr, cc] = True
+    return grid
+
+
+def _fill_pockets(grid: np.ndarray) -> np.ndarray:
+    """Walls plus every free cell outside the largest free region."""
+    if grid.all():
+        return grid
+    labels = _region_labels(grid)
+    return labels != int(np.argmax(np.bincount(labels.ravel())[1:])) + 1
+
+
+# ------------------------------------------------------------------------------ batching
+def stack_walls(mazes: Sequence[Maze], num_slots: int) -> Walls:
+    """Walls of several mazes with a leading batch axis: [B, num_slots]. Every maze must fit
+    (``MazeFileError`` naming the first that does not)."""
+    if len(mazes) == 0:
+        raise ValueError("stack_walls: no mazes")
+    parts = [_walls_np(m, num_slots) for m in mazes]
+    return Walls(
+        center=jnp.asarray(np.stack([p[0] for p in parts])),
+        half_size=jnp.asarray(np.stack([p[1] for p in parts])),
+        active=jnp.asarray(np.stack([p[2] for p in parts])),
+    )
+
+
+def stack_mazes(mazes: Sequence[Maze], num_slots: int) -> MazeBank:
+    """A ``MazeBank`` of mazes that share rows, cols and cell size: walls, placement-cell
+    centres padded to the bank's largest count (with the maze's first cell, so any index
+    below the padded size is a valid cell) and the S/G cells."""
+    if len(mazes) == 0:
+        raise ValueError("stack_mazes: no mazes")
+    m0 = mazes[0]
+    for m in mazes[1:]:
+        if m.grid.shape != m0.grid.shape or m.cell_size != m0.cell_size:
+            raise ValueError(
+                f"stack_mazes: {m.name} is {m.rows}x{m.cols} at {m.cell_size} m, but {m0.name} "
+                f"is {m0.rows}x{m0.cols} at {m0.cell_size} m; a bank needs one shape"
+            )
+    placement = [m.placement_cells() for m in mazes]
+    fmax = max(len(p) for p in placement)
+    cells = np.stack([np.concatenate([p, np.repeat(p[:1], fmax - len(p), 0)]) for p in placement])
+    free_xy = np.stack([m.cell_centers(c) for m, c in zip(mazes, cells, strict=True)])
+
+    def mark(label: str) -> tuple[np.ndarray, np.ndarray]:
+        cell = [getattr(m, label) for m in mazes]
+        xy = [
+            m.cell_center(*c) if c is not None else tuple(f[0])
+            for m, c, f in zip(mazes, cell, free_xy, strict=True)
+        ]
+        return np.array(xy, np.float32), np.array([c is not None for c in cell])
+
+    start_xy, has_start = mark("start")
+    goal_xy, has_goal = mark("goal")
+    return MazeBank(
+        walls=stack_walls(mazes, num_slots),
+        free_xy=jnp.asarray(free_xy, jnp.float32),
+        free_cells=jnp.asarray(cells, jnp.int32),
+        num_free=jnp.asarray([len(p) for p in placement], jnp.int32),
+        grid=jnp.asarray(np.stack([m.grid for m in mazes])),
+        start_xy=jnp.asarray(start_xy),
+        has_start=jnp.asarray(has_start),
+        goal_xy=jnp.asarray(goal_xy),
+        has_goal=jnp.asarray(has_goal),
+        cell_size=m0.cell_size,
+    )
