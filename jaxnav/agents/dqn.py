@@ -7,6 +7,7 @@ the paper's model (eq. 6 and 7 of the paper).
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import flax.linen as nn
 import jax
@@ -172,6 +173,6 @@ def td_loss(
     return per_sample.mean(), {"q_mean": q_taken.mean(), "q_max": jnp.abs(q).max()}
 
 
-def polyak(target_params, params, tau: jax.Array):
+def polyak(target_params: Any, params: Any, tau: jax.Array) -> Any:
     """``tau * params + (1 - tau) * target``; tau = 1 is a hard copy."""
     return jax.tree.map(lambda t, p: tau * p + (1.0 - tau) * t, target_params, params)

@@ -360,7 +360,7 @@ class GridMaze(Environment[GridMazeState, GridMazeParams]):
         shortest = shortest_path_length(obstacles, start, goal)
         return self._start(start, goal, layout, shortest, params)
 
-    def _start(self, start, goal, layout, shortest, params):
+    def _start(self, start, goal, layout, shortest, params) -> tuple[jax.Array, GridMazeState]:
         state = GridMazeState(
             time=jnp.zeros((), jnp.int32),
             pos=start,
@@ -370,7 +370,9 @@ class GridMaze(Environment[GridMazeState, GridMazeParams]):
         )
         return self.get_obs(state, params), state
 
-    def step_env(self, key, state: GridMazeState, action, params: GridMazeParams):
+    def step_env(
+        self, key: jax.Array, state: GridMazeState, action: jax.Array, params: GridMazeParams
+    ) -> tuple[jax.Array, GridMazeState, jax.Array, jax.Array, dict[str, jax.Array]]:
         target = state.pos + jnp.asarray(MOVES)[action]
         blocked = ((self._moves_blocked(params, state) >> action) & 1).astype(bool)
         pos = jnp.where(blocked, state.pos, target)
