@@ -8,6 +8,7 @@ from typing import Any
 
 from jaxnav.environment import Environment, EnvParams
 from jaxnav.envs import grid_maze
+from jaxnav.envs.robot import env as robot
 
 # id -> (environment class, its default_config(), overrides that define the id)
 _REGISTRY: dict[str, tuple[Callable[..., Environment], Callable[[], Any], dict[str, Any]]] = {
@@ -17,6 +18,10 @@ _REGISTRY: dict[str, tuple[Callable[..., Environment], Callable[[], Any], dict[s
         grid_maze.default_config,
         {"random_layouts": True, "obs_mode": "sensor"},
     ),
+    "RobotSimple-v0": (robot.RobotNav, robot.default_config, {"maze": "simple"}),
+    "RobotComplex-v0": (robot.RobotNav, robot.default_config, {"maze": "complex"}),
+    "RobotRandom-v0": (robot.RobotNav, robot.default_config, {"maze": "random"}),
+    "RobotMaze-v0": (robot.RobotNav, robot.default_config, {"maze": "file"}),
 }
 
 

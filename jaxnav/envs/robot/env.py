@@ -1,0 +1,287 @@
+"""The paper's continuous experiment (Sec. III, IV-B): a differential-drive robot in a walled
+maze that sees 7 laser ranges, the goal's and its own position.
+
+Actions (wheel speeds as (v, omega)): 0 forward (+v), 1 backward (-v), 2 turn left (+omega),
+3 turn right (-omega). A control step is ``dt`` = 0.1 s.
+
+Reward: ``goal_reward`` (+10) within ``goal_radius`` of the goal, ``collision_reward`` (-5) on
+touching a wall, otherwise a step reward that falls linearly from ``step_reward_start`` (-0.5)
+at the first step to ``step_reward_end`` (-1) at the time limit (the paper: "between -1 and
+-0.5 depending on the current number of steps"). Goal and collision terminate; ``max_steps``
+(250) truncates. Each term is in ``info``.
+
+Observation: the last ``frames`` (4) sets, oldest first, of (7 lasers / (10 sqrt 2), goal x,
+goal y, robot x, robot y), positions divided by the arena size; options add the proximity D /
+(10 sqrt 2) and the heading (sin, cos) to each set (off by default, as in the paper).
+
+Lasers: 7 analytic ray casts over the front half (-90, -60, ..., +90 degrees from the heading;
+``geometry.laser_angles``) against the maze's wall boxes, from the robot's centre, clipped to
+10 sqrt 2 m.
+
+Backends: ``kinematic`` is an exact pure-JAX unicycle that stops in front of walls
+(``geometry.move_with_walls``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from jaxnav import spaces
+from jaxnav.environment import Environment, EnvParams, EnvState
+from jaxnav.envs.robot import geometry, mazes
+
+ACTION_NAMES = ("forward", "backward", "turn_left", "turn_right")
+MAZES = ("simple", "complex", "random", "file")
+BACKENDS = ("kinematic",)
+LASER_SCALE = 10.0 * math.sqrt(2.0)  # Table I: sensors normalized by their maximum variation
+NUM_LASERS = 7
+
+
+@dataclasses.dataclass(frozen=True)
+class RobotConfig:
+    """Everything that defines a robot env; ``jaxnav.make(id, **overrides)`` replaces fields."""
+
+    maze: str = "simple"
+    maze_file: str | None = None
+    num_layouts: int = 256  # bank size when maze == "random"
+    random_size: int = 10  # cells per side of random mazes (1 m cells)
+    num_wall_slots: int = 24
+    backend: str = "kinematic"
+    radius: float = 0.15
+    speed: float = 1.0  # m/s, forward and backward
+    turn_speed: float = 2.0  # rad/s
+    dt: float = 0.1
+    substeps: int = 8
+    goal_radius: float = 0.5
+    max_steps: int = 250
+    frames: int = 4
+    obs_proximity: bool = False
+    obs_heading: bool = False
+    goal_reward: float = 10.0
+    collision_reward: float = -5.0
+    step_reward_start: float = -0.5
+    step_reward_end: float = -1.0
+
+    def validate(self) -> None:
+        """Raise ``ValueError`` naming the first bad field; loads and checks a maze file."""
+        if self.maze not in MAZES:
+            raise ValueError(f"maze={self.maze!r}: must be one of {', '.join(MAZES)}")
+        if self.backend not in BACKENDS:
+            raise ValueError(f"backend={self.backend!r}: must be one of {', '.join(BACKENDS)}")
+        for name, lo, hi in (
+            ("num_layouts", 1, 100_000),
+            ("random_size", 3, 100),
+            ("num_wall_slots", 4, 4096),
+            ("substeps", 1, 1000),
+            ("max_steps", 1, 1_000_000),
+            ("frames", 1, 64),
+        ):
+            v = getattr(self, name)
+            if not isinstance(v, int) or isinstance(v, bool) or not lo <= v <= hi:
+                raise ValueError(f"{name}={v!r}: must be an integer in [{lo}, {hi}]")
+        for name in ("radius", "speed", "turn_speed", "dt", "goal_radius"):
+            v = getattr(self, name)
+            if not _positive(v):
+                raise ValueError(f"{name}={v!r}: must be a positive number")
+        for name in ("goal_reward", "collision_reward", "step_reward_start", "step_reward_end"):
+            v = getattr(self, name)
+            if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v):
+                raise ValueError(f"{name}={v!r}: must be a finite number")
+        if (self.maze == "file") != (self.maze_file is not None):
+            raise ValueError(
+                f"maze_file={self.maze_file!r}: give a maze file exactly when maze='file'"
+            )
+        for maze in self.load_mazes(validate_only=True):
+            mazes.check_slots(maze, self.num_wall_slots)
+            width, height = maze.size_m
+            if self.goal_radius >= min(width, height) / 2:
+                raise ValueError(
+                    f"goal_radius={self.goal_radius}: larger than the {maze.name} maze allows "
+                    f"({width:g} x {height:g} m)"
+                )
+            if self.radius >= maze.cell_size / 2:
+                raise ValueError(
+                    f"radius={self.radius}: the robot must fit in a {maze.cell_size:g} m cell "
+                    f"of the {maze.name} maze (radius < {maze.cell_size / 2:g})"
+                )
+
+    def load_mazes(self, validate_only: bool = False) -> list[mazes.Maze]:
+        if self.maze == "file":
+            return [mazes.load_maze(self.maze_file)]
+        if self.maze == "random":
+            num = 1 if validate_only else self.num_layouts
+            return mazes.random_maze_bank(
+                num, self.random_size, self.random_size, num_slots=self.num_wall_slots
+            )
+        return [mazes.builtin_maze(self.maze)]
+
+
+def default_config() -> RobotConfig:
+    return RobotConfig()
+
+
+def _positive(v: Any) -> bool:
+    ok = isinstance(v, (int, float)) and not isinstance(v, bool)
+    return ok and math.isfinite(v) and v > 0
+
+
+@struct.dataclass
+class RobotState(EnvState):
+    pose: jax.Array  # float32[3] x, y, heading
+    goal: jax.Array  # float32[2]
+    layout: jax.Array  # int32 index into the maze bank
+    frames: jax.Array  # float32[frames, per_frame], oldest first
+
+
+@struct.dataclass
+class RobotParams(EnvParams):
+    max_steps_in_episode: int = 250
+    goal_radius: float = 0.5
+    goal_reward: float = 10.0
+    collision_reward: float = -5.0
+    step_reward_start: float = -0.5
+    step_reward_end: float = -1.0
+    bank: mazes.MazeBank | None = None
+
+
+class RobotNav(Environment[RobotState, RobotParams]):
+    """Laser-based navigation of a differential-drive robot; see the module docstring."""
+
+    stochastic_step = False  # motion is deterministic; resets draw from the key
+
+    def __init__(self, config: RobotConfig | None = None, name: str = "RobotSimple-v0"):
+        self.config = default_config() if config is None else config
+        self.config.validate()
+        self.name = name
+        self._bank = mazes.stack_mazes(self.config.load_mazes(), self.config.num_wall_slots)
+        self.arena = np.asarray(self._bank.size_m, np.float32)
+        self.angles = geometry.laser_angles(NUM_LASERS)
+        c = self.config
+        # enough sub-steps that one moves less than the thinnest wall's half size
+        thinnest = float(
+            np.min(np.where(self._bank.walls.active, self._bank.walls.half_size.min(-1), np.inf))
+        )
+        self.substeps = max(c.substeps, geometry.min_substeps(c.speed, c.dt, thinnest))
+
+    @property
+    def default_params(self) -> RobotParams:
+        c = self.config
+        return RobotParams(
+            max_steps_in_episode=c.max_steps,
+            goal_radius=c.goal_radius,
+            goal_reward=c.goal_reward,
+            collision_reward=c.collision_reward,
+            step_reward_start=c.step_reward_start,
+            step_reward_end=c.step_reward_end,
+            bank=self._bank,
+        )
+
+    @property
+    def num_actions(self) -> int:
+        return len(ACTION_NAMES)
+
+    @property
+    def frame_size(self) -> int:
+        return NUM_LASERS + 4 + int(self.config.obs_proximity) + 2 * int(self.config.obs_heading)
+
+    def observation_space(self, params: RobotParams | None = None) -> spaces.Box:
+        return spaces.Box(-1.0, 1.0, (self.config.frames * self.frame_size,), jnp.float32)
+
+    # -- episodes -----------------------------------------------------------------
+    def reset_env(self, key: jax.Array, params: RobotParams) -> tuple[jax.Array, RobotState]:
+        bank = params.bank
+        k_layout, k_start, k_goal, k_heading = jax.random.split(key, 4)
+        layout = jax.random.randint(k_layout, (), 0, bank.num_mazes)
+        n = bank.num_free[layout]
+        start_idx = jax.random.randint(k_start, (), 0, n)
+        goal_idx = jax.random.randint(k_goal, (), 0, n - 1)
+        goal_idx = goal_idx + (goal_idx >= start_idx)  # a different cell than the start
+        heading = jax.random.uniform(k_heading, (), minval=-jnp.pi, maxval=jnp.pi)
+        start = bank.free_xy[layout, start_idx]
+        goal = bank.free_xy[layout, goal_idx]
+        return self.reset_to(key, params, jnp.append(start, heading), goal, layout)
+
+    def reset_to(
+        self,
+        key: jax.Array,
+        params: RobotParams,
+        pose: jax.Array,
+        goal: jax.Array,
+        layout: jax.Array | int = 0,
+    ) -> tuple[jax.Array, RobotState]:
+        """Start at ``pose`` (x, y, heading) with ``goal`` (x, y) in bank maze ``layout``."""
+        del key
+        pose = jnp.asarray(pose, jnp.float32)
+        goal = jnp.asarray(goal, jnp.float32)
+        layout = jnp.asarray(layout, jnp.int32)
+        frame = self._frame(pose, goal, layout, params)
+        frames = jnp.broadcast_to(frame, (self.config.frames, frame.shape[0]))
+        state = RobotState(
+            time=jnp.zeros((), jnp.int32), pose=pose, goal=goal, layout=layout, frames=frames
+        )
+        return self.get_obs(state, params), state
+
+    def step_env(
+        self, key: jax.Array, state: RobotState, action: jax.Array, params: RobotParams
+    ) -> tuple[jax.Array, RobotState, jax.Array, jax.Array, dict[str, jax.Array]]:
+        c = self.config
+        v = jnp.array([c.speed, -c.speed, 0.0, 0.0])[action]
+        omega = jnp.array([0.0, 0.0, c.turn_speed, -c.turn_speed])[action]
+        walls = self._walls(params, state.layout)
+        pose, collided, penetration = geometry.move_with_walls(
+            state.pose, v, omega, c.dt, c.radius, *walls, substeps=self.substeps
+        )
+        at_goal = jnp.linalg.norm(pose[:2] - state.goal) < params.goal_radius
+        at_goal = at_goal & ~collided
+        frac = state.time.astype(jnp.float32) / params.max_steps_in_episode
+        step_reward = (
+            params.step_reward_start + (params.step_reward_end - params.step_reward_start) * frac
+        )
+        r_goal = jnp.where(at_goal, params.goal_reward, 0.0)
+        r_collision = jnp.where(collided, params.collision_reward, 0.0)
+        r_step = jnp.where(at_goal | collided, 0.0, step_reward)
+        frame = self._frame(pose, state.goal, state.layout, params)
+        frames = jnp.concatenate([state.frames[1:], frame[None]], axis=0)
+        state = state.replace(pose=pose, frames=frames, time=state.time + 1)
+        info = {
+            "goal_reached": at_goal,
+            "collision": collided,
+            "penetration": penetration,
+            "reward_goal": r_goal,
+            "reward_collision": r_collision,
+            "reward_step": r_step,
+        }
+        reward = r_goal + r_collision + r_step
+        return self.get_obs(state, params), state, reward, at_goal | collided, info
+
+    # -- observation --------------------------------------------------------------
+    def _walls(self, params: RobotParams, layout: jax.Array) -> tuple[jax.Array, ...]:
+        w = params.bank.walls
+        return w.center[layout], w.half_size[layout], w.active[layout]
+
+    def lasers(self, pose: jax.Array, layout: jax.Array, params: RobotParams) -> jax.Array:
+        """Laser ranges in metres (not normalized)."""
+        return geometry.lasers(pose, *self._walls(params, layout), self.angles, LASER_SCALE)
+
+    def _frame(self, pose, goal, layout, params) -> jax.Array:
+        arena = jnp.asarray(self.arena)
+        parts = [
+            self.lasers(pose, layout, params) / LASER_SCALE,
+            goal / arena,
+            pose[:2] / arena,
+        ]
+        if self.config.obs_proximity:
+            parts.append(jnp.linalg.norm(goal - pose[:2])[None] / LASER_SCALE)
+        if self.config.obs_heading:
+            parts.append(jnp.stack([jnp.sin(pose[2]), jnp.cos(pose[2])]))
+        return jnp.concatenate(parts)
+
+    def get_obs(self, state: RobotState, params: RobotParams) -> jax.Array:
+        return state.frames.reshape(-1)

@@ -1,0 +1,161 @@
+"""The continuous robot env (kinematic backend): motion, rewards, frames, auto-reset, errors."""
+
+from __future__ import annotations
+
+import math
+
+import chex
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxnav
+from jaxnav.envs.robot import geometry
+from jaxnav.envs.robot.env import LASER_SCALE, NUM_LASERS
+
+FORWARD, BACKWARD, LEFT, RIGHT = range(4)
+KEY = jax.random.key(0)
+
+
+@pytest.fixture(scope="module")
+def simple():
+    env, params = jaxnav.make("RobotSimple-v0")
+    return env, params, jax.jit(env.step), jax.jit(env.step_env)
+
+
+def start(env, params, x, y, heading, goal=(8.5, 8.5)):
+    return env.reset_to(KEY, params, jnp.array([x, y, heading]), jnp.array(goal))
+
+
+def test_forward_moves_along_heading_and_turns_only_change_yaw(simple):
+    env, params, _, step_env = simple
+    c = env.config
+    heading = 0.3
+    _, s = start(env, params, 2.5, 1.5, heading)
+    _, s1, r, term, _ = step_env(KEY, s, FORWARD, params)
+    moved = np.asarray(s1.pose[:2] - s.pose[:2])
+    np.testing.assert_allclose(
+        moved, c.speed * c.dt * np.array([math.cos(heading), math.sin(heading)]), atol=1e-5
+    )
+    _, s2, _, _, _ = step_env(KEY, s, LEFT, params)
+    np.testing.assert_allclose(s2.pose[:2], s.pose[:2], atol=1e-6)
+    assert float(s2.pose[2] - s.pose[2]) == pytest.approx(c.turn_speed * c.dt, abs=1e-5)
+    _, s3, _, _, _ = step_env(KEY, s, RIGHT, params)
+    assert float(s3.pose[2] - s.pose[2]) == pytest.approx(-c.turn_speed * c.dt, abs=1e-5)
+    assert not bool(term)
+    # the step reward starts at -0.5 and falls towards -1 with the step count
+    assert float(r) == pytest.approx(c.step_reward_start)
+    late = s.replace(time=jnp.asarray(c.max_steps - 1))
+    _, _, r_late, _, _ = step_env(KEY, late, LEFT, params)
+    assert c.step_reward_end <= float(r_late) < -0.99
+
+
+def test_driving_into_a_wall_collides_stops_short_and_terminates(simple):
+    env, params, _, step_env = simple
+    # facing the arena's left boundary from 0.3 m away
+    _, s = start(env, params, 0.3, 1.5, math.pi)
+    for _ in range(5):
+        _, s, r, term, info = step_env(KEY, s, FORWARD, params)
+        if bool(term):
+            break
+    assert bool(term) and bool(info["collision"]) and float(r) == -5.0
+    assert float(info["reward_collision"]) == -5.0 and float(info["reward_step"]) == 0.0
+    assert float(s.pose[0]) >= env.config.radius - 1e-4  # never inside the wall
+    assert float(info["penetration"]) == 0.0
+
+
+def test_goal_reward_terminates(simple):
+    env, params, _, step_env = simple
+    _, s = start(env, params, 2.5, 1.5, 0.0, goal=(3.0, 1.5))
+    _, _, r, term, info = step_env(KEY, s, FORWARD, params)
+    assert bool(term) and bool(info["goal_reached"]) and float(r) == 10.0
+    assert float(info["reward_goal"] + info["reward_collision"] + info["reward_step"]) == 10.0
+
+
+def test_frames_stack_oldest_first_and_lasers_normalized(simple):
+    env, params, _, step_env = simple
+    obs, s = start(env, params, 2.5, 1.5, 0.0)
+    per = env.frame_size
+    chex.assert_shape(obs, (4 * per,))
+    assert np.all(obs.reshape(4, per) == obs[:per])  # reset repeats the first frame
+    poses = [s.pose]
+    for _ in range(3):
+        obs, s, *_ = step_env(KEY, s, FORWARD, params)
+        poses.append(s.pose)
+    frames = np.asarray(obs).reshape(4, per)
+    arena = env.arena
+    for k, pose in enumerate(poses):  # oldest first: frame k is the pose after k steps
+        np.testing.assert_allclose(
+            frames[k, NUM_LASERS + 2 : NUM_LASERS + 4], pose[:2] / arena, atol=1e-6
+        )
+        lasers = env.lasers(pose, s.layout, params) / LASER_SCALE
+        np.testing.assert_allclose(frames[k, :NUM_LASERS], lasers, atol=1e-6)
+    assert np.all((frames[:, :NUM_LASERS] >= 0) & (frames[:, :NUM_LASERS] <= 1))
+
+
+def test_auto_reset_keeps_final_observation_and_truncates(simple):
+    env, params, step, _ = simple
+    short = params.replace(max_steps_in_episode=3)
+    obs, s = start(env, short, 2.5, 1.5, 0.0)
+    for _ in range(3):
+        prev = s
+        obs, s, r, term, trunc, info = step(KEY, s, LEFT, short)
+    assert bool(trunc) and not bool(term)
+    assert int(s.time) == 0  # a fresh episode
+    final = env.step_env(KEY, prev, LEFT, short)[0]
+    np.testing.assert_allclose(info["final_observation"], final)
+    np.testing.assert_allclose(obs, env.get_obs(s, short))
+
+
+@pytest.mark.parametrize("env_id", ["RobotSimple-v0", "RobotComplex-v0", "RobotRandom-v0"])
+def test_vmapped_rollout_is_finite_and_never_inside_walls(env_id):
+    env, params = (
+        jaxnav.make(env_id, num_layouts=16) if env_id == "RobotRandom-v0" else jaxnav.make(env_id)
+    )
+    n = 64
+    chex.clear_trace_counter()  # the parametrized cases each define their own rollout
+    obs, s = jax.vmap(env.reset, in_axes=(0, None))(jax.random.split(KEY, n), params)
+
+    @jax.jit
+    @chex.assert_max_traces(n=1)
+    def rollout(s, key):
+        def body(s, k):
+            ka, ks = jax.random.split(k)
+            a = jax.random.randint(ka, (n,), 0, 4)
+            obs, s, r, te, tr, info = jax.vmap(env.step, in_axes=(0, 0, 0, None))(
+                jax.random.split(ks, n), s, a, params
+            )
+            walls = params.bank.walls
+            pen = jax.vmap(geometry.circle_box_penetration, in_axes=(0, None, 0, 0, 0))(
+                s.pose[:, :2],
+                env.config.radius,
+                walls.center[s.layout],
+                walls.half_size[s.layout],
+                walls.active[s.layout],
+            )
+            return s, (obs, r, pen)
+
+        return jax.lax.scan(body, s, jax.random.split(key, 100))
+
+    s, (obs, r, pen) = rollout(s, jax.random.key(1))
+    chex.assert_tree_all_finite((obs, r))
+    assert float(pen.max()) == 0.0
+    assert np.all(np.isin(np.round(np.asarray(r), 4), [10.0, -5.0]) | ((r <= -0.5) & (r >= -1.0)))
+
+
+def test_bad_robot_overrides_are_refused(tmp_path):
+    with pytest.raises(ValueError, match="maze_file=None"):
+        jaxnav.make("RobotMaze-v0")
+    with pytest.raises(ValueError, match="backend='warp'"):
+        jaxnav.make("RobotSimple-v0", backend="warp")
+    with pytest.raises(ValueError, match="goal_radius=6"):
+        jaxnav.make("RobotSimple-v0", goal_radius=6.0)
+    bad = tmp_path / "bad.txt"
+    bad.write_text("#..\n#.\n")
+    with pytest.raises(ValueError, match=f"{bad}:2"):
+        jaxnav.make("RobotMaze-v0", maze_file=str(bad))
+    good = tmp_path / "good.txt"
+    good.write_text("cell_size: 1.0\nS....\n.###.\n....G\n")
+    env, params = jaxnav.make("RobotMaze-v0", maze_file=str(good))
+    assert tuple(env.arena) == (5.0, 3.0)
