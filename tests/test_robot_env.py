@@ -159,3 +159,32 @@ def test_bad_robot_overrides_are_refused(tmp_path):
     good.write_text("cell_size: 1.0\nS....\n.###.\n....G\n")
     env, params = jaxnav.make("RobotMaze-v0", maze_file=str(good))
     assert tuple(env.arena) == (5.0, 3.0)
+
+
+def test_mjx_backend_agrees_with_kinematic_in_free_space_and_collides():
+    kin, kp = jaxnav.make("RobotSimple-v0")
+    mjx_env, mp = jaxnav.make("RobotSimple-v0", backend="mjx")
+    actions = jnp.array([FORWARD, FORWARD, LEFT, FORWARD, RIGHT, RIGHT, FORWARD, BACKWARD] * 3)
+
+    def rollout(env, params, pose):
+        _, s = env.reset_to(KEY, params, pose, jnp.array([8.5, 8.5]))
+
+        def body(s, a):
+            obs, s, r, term, info = env.step_env(KEY, s, a, params)
+            return s, (s.pose, r, term, info["collision"])
+
+        return jax.jit(lambda s: jax.lax.scan(body, s, actions))(s)[1]
+
+    open_floor = jnp.array([5.0, 5.0, 0.2])
+    (kin_pose, kin_r, _, _), (mjx_pose, mjx_r, _, mjx_hit) = (
+        rollout(kin, kp, open_floor),
+        rollout(mjx_env, mp, open_floor),
+    )
+    assert not bool(mjx_hit.any())
+    np.testing.assert_allclose(mjx_pose, kin_pose, atol=1e-3)  # stated tolerance: 1 mm, 1 mrad
+    np.testing.assert_allclose(mjx_r, kin_r)
+    # towards the left boundary wall, 0.2 m of clearance: two forward steps end touching it
+    # (not a collision), the turn stays put, the next forward step collides (-5, terminated)
+    _, r, term, hit = rollout(mjx_env, mp, jnp.array([0.35, 5.0, math.pi]))
+    first = int(np.argmax(np.asarray(hit)))
+    assert first == 3 and bool(term[first]) and float(r[first]) == -5.0

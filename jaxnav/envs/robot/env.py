@@ -19,7 +19,10 @@ Lasers: 7 analytic ray casts over the front half (-90, -60, ..., +90 degrees fro
 10 sqrt 2 m.
 
 Backends: ``kinematic`` is an exact pure-JAX unicycle that stops in front of walls
-(``geometry.move_with_walls``).
+(``geometry.move_with_walls``); ``mjx`` steps the robot with MuJoCo MJX (``mjx_backend.py``:
+a sphere on slide/slide/hinge joints with velocity actuators, per-env walls in the model's geom
+fields), which touches walls with a few millimetres of penetration before the episode ends.
+Both share lasers, observation, reward and mazes.
 """
 
 from __future__ import annotations
@@ -39,7 +42,7 @@ from jaxnav.envs.robot import geometry, mazes
 
 ACTION_NAMES = ("forward", "backward", "turn_left", "turn_right")
 MAZES = ("simple", "complex", "random", "file")
-BACKENDS = ("kinematic",)
+BACKENDS = ("kinematic", "mjx")
 LASER_SCALE = 10.0 * math.sqrt(2.0)  # Table I: sensors normalized by their maximum variation
 NUM_LASERS = 7
 
@@ -169,6 +172,13 @@ class RobotNav(Environment[RobotState, RobotParams]):
             np.min(np.where(self._bank.walls.active, self._bank.walls.half_size.min(-1), np.inf))
         )
         self.substeps = max(c.substeps, geometry.min_substeps(c.speed, c.dt, thinnest))
+        self.physics = None
+        if c.backend == "mjx":  # imported here so that `import jaxnav` does not load MuJoCo
+            from jaxnav.envs.robot.mjx_backend import MjxRobot
+
+            self.physics = MjxRobot(
+                c.num_wall_slots, c.radius, tuple(self.arena), timestep=c.dt / 5, substeps=5
+            )
 
     @property
     def default_params(self) -> RobotParams:
@@ -234,10 +244,16 @@ class RobotNav(Environment[RobotState, RobotParams]):
         c = self.config
         v = jnp.array([c.speed, -c.speed, 0.0, 0.0])[action]
         omega = jnp.array([0.0, 0.0, c.turn_speed, -c.turn_speed])[action]
-        walls = self._walls(params, state.layout)
-        pose, collided, penetration = geometry.move_with_walls(
-            state.pose, v, omega, c.dt, c.radius, *walls, substeps=self.substeps
-        )
+        if self.physics is None:
+            walls = self._walls(params, state.layout)
+            pose, collided, penetration = geometry.move_with_walls(
+                state.pose, v, omega, c.dt, c.radius, *walls, substeps=self.substeps
+            )
+        else:
+            walls = jax.tree.map(lambda x: x[state.layout], params.bank.walls)
+            model = self.physics.with_walls(walls)
+            data = self.physics.init(model, state.pose)
+            _, pose, collided, penetration = self.physics.step(model, data, v, omega)
         at_goal = jnp.linalg.norm(pose[:2] - state.goal) < params.goal_radius
         at_goal = at_goal & ~collided
         frac = state.time.astype(jnp.float32) / params.max_steps_in_episode
