@@ -7,6 +7,8 @@ import importlib.metadata
 import json
 import os
 import platform
+import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -39,3 +41,19 @@ def write_results(out: Path, result: dict[str, Any], markdown: str) -> None:
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(result, indent=2) + "\n")
     out.with_suffix(".md").write_text(markdown + "\n")
+
+
+def compile_timed(fn: Callable[..., Any], *args: Any) -> tuple[Callable[[], float], float]:
+    """Compile ``jit(fn)`` for ``args``; return (a function timing one call in seconds, the
+    compile time). One warm-up call is made, so the first timed call is a steady-state one."""
+    t0 = time.perf_counter()
+    compiled = jax.jit(fn).lower(*args).compile()
+    compile_s = time.perf_counter() - t0
+
+    def run() -> float:
+        t0 = time.perf_counter()
+        jax.block_until_ready(compiled(*args))
+        return time.perf_counter() - t0
+
+    run()
+    return run, compile_s

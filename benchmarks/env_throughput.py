@@ -24,7 +24,6 @@ import argparse
 import os
 import statistics
 import sys
-import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -33,7 +32,7 @@ import jax
 import jax.numpy as jnp
 
 import jaxnav
-from benchmarks.common import machine_info, write_results
+from benchmarks.common import compile_timed, machine_info, write_results
 
 # (key, state, action) -> (obs, state, reward); one environment, vmapped by the benchmark
 StepFn = Callable[[jax.Array, Any, jax.Array], tuple[jax.Array, Any, jax.Array]]
@@ -96,16 +95,7 @@ def prepare(name: str, num_envs: int, steps: int, seed: int = 0) -> dict[str, An
     obs, state = jax.block_until_ready(
         jax.jit(jax.vmap(reset))(jax.random.split(k_reset, num_envs))
     )
-    t0 = time.perf_counter()
-    compiled = jax.jit(rollout).lower(k_run, obs, state).compile()
-    compile_s = time.perf_counter() - t0
-
-    def run() -> float:
-        t0 = time.perf_counter()
-        jax.block_until_ready(compiled(k_run, obs, state))
-        return time.perf_counter() - t0
-
-    run()  # warm-up
+    run, compile_s = compile_timed(rollout, k_run, obs, state)
     return {"env": name, "num_envs": num_envs, "steps": steps, "compile_s": compile_s, "run": run}
 
 

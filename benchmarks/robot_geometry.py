@@ -26,7 +26,6 @@ from __future__ import annotations
 import argparse
 import statistics
 import sys
-import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -35,7 +34,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from benchmarks.common import machine_info, write_results
+from benchmarks.common import compile_timed, machine_info, write_results
 from jaxnav.envs.robot import geometry as g
 
 DEFAULT_OUT = Path("benchmarks/results/robot_geometry.json")
@@ -110,16 +109,7 @@ def prepare(kind: str, num_envs: int, num_walls: int, steps: int, substeps: int)
         return jax.lax.scan(body, (pose, jnp.zeros((), jnp.float32)), cmds)[0]
 
     args = (pose, cmds, center, half, active)
-    t0 = time.perf_counter()
-    compiled = jax.jit(rollout).lower(*args).compile()
-    compile_s = time.perf_counter() - t0
-
-    def run() -> float:
-        t0 = time.perf_counter()
-        jax.block_until_ready(compiled(*args))
-        return time.perf_counter() - t0
-
-    run()  # warm-up
+    run, compile_s = compile_timed(rollout, *args)
     return {
         "kind": kind,
         "num_envs": num_envs,

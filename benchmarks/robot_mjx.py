@@ -20,7 +20,6 @@ import argparse
 import importlib.metadata
 import statistics
 import sys
-import time
 from pathlib import Path
 from typing import Any
 
@@ -28,7 +27,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from benchmarks.common import machine_info, write_results
+from benchmarks.common import compile_timed, machine_info, write_results
 from jaxnav.envs.robot import mazes
 from jaxnav.envs.robot.mjx_backend import MjxRobot
 
@@ -60,16 +59,7 @@ def prepare(robot: MjxRobot, bank: mazes.MazeBank, num_envs: int, steps: int) ->
         return jax.lax.scan(body, (data, jnp.zeros((), jnp.float32)), keys)[0]
 
     args = (models, data, jax.random.key(1))
-    t0 = time.perf_counter()
-    compiled = jax.jit(rollout).lower(*args).compile()
-    compile_s = time.perf_counter() - t0
-
-    def run() -> float:
-        t0 = time.perf_counter()
-        jax.block_until_ready(compiled(*args))
-        return time.perf_counter() - t0
-
-    run()  # warm-up
+    run, compile_s = compile_timed(rollout, *args)
     return {"num_envs": num_envs, "steps": steps, "compile_s": compile_s, "run": run}
 
 
