@@ -168,9 +168,7 @@ class RobotNav(Environment[RobotState, RobotParams]):
         self.angles = geometry.laser_angles(NUM_LASERS)
         c = self.config
         # enough sub-steps that one moves less than the thinnest wall's half size
-        thinnest = float(
-            np.min(np.where(self._bank.walls.active, self._bank.walls.half_size.min(-1), np.inf))
-        )
+        thinnest = self._bank.walls.min_half_size()
         self.substeps = max(c.substeps, geometry.min_substeps(c.speed, c.dt, thinnest))
         self.physics = None
         if c.backend == "mjx":  # imported here so that `import jaxnav` does not load MuJoCo
