@@ -57,3 +57,14 @@ def compile_timed(fn: Callable[..., Any], *args: Any) -> tuple[Callable[[], floa
 
     run()
     return run, compile_s
+
+
+def time_in_turn(rows: list[dict[str, Any]], rounds: int) -> None:
+    """Call each row's ``run`` ``rounds`` times in turn (A, B, C, A, B, C, ...), so a change of
+    machine load hits all rows alike and ratios between them stay meaningful. Stores the times
+    as ``run_s`` and drops ``run`` (a function cannot go into JSON)."""
+    for _ in range(rounds):
+        for row in rows:
+            row.setdefault("run_s", []).append(row["run"]())
+    for row in rows:
+        del row["run"]

@@ -32,7 +32,7 @@ import jax
 import jax.numpy as jnp
 
 import jaxnav
-from benchmarks.common import compile_timed, machine_info, write_results
+from benchmarks.common import compile_timed, machine_info, time_in_turn, write_results
 
 # (key, state, action) -> (obs, state, reward); one environment, vmapped by the benchmark
 StepFn = Callable[[jax.Array, Any, jax.Array], tuple[jax.Array, Any, jax.Array]]
@@ -102,17 +102,10 @@ def prepare(name: str, num_envs: int, steps: int, seed: int = 0) -> dict[str, An
 def measure_interleaved(names: list[str], num_envs: int, steps: int, rounds: int) -> list[dict]:
     """Time every row ``rounds`` times in turn (row A, B, C, A, B, C, ...), so that a change of
     machine load hits all rows alike and the ratios stay meaningful; median per row."""
-    prepared = [prepare(name, num_envs, steps) for name in names]
-    for _ in range(rounds):
-        for p in prepared:
-            p.setdefault("run_s", []).append(p["run"]())
-    rows = []
-    for p in prepared:
-        run_s = p.pop("run_s")
-        del p["run"]
-        rows.append(
-            {**p, "run_s": run_s, "steps_per_s": num_envs * steps / statistics.median(run_s)}
-        )
+    rows = [prepare(name, num_envs, steps) for name in names]
+    time_in_turn(rows, rounds)
+    for row in rows:
+        row["steps_per_s"] = num_envs * steps / statistics.median(row["run_s"])
     return rows
 
 

@@ -34,7 +34,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from benchmarks.common import compile_timed, machine_info, write_results
+from benchmarks.common import compile_timed, machine_info, time_in_turn, write_results
 from jaxnav.envs.robot import geometry as g
 
 DEFAULT_OUT = Path("benchmarks/results/robot_geometry.json")
@@ -143,11 +143,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     rows = []
     for w in walls:
         prepared = [prepare(k, args.num_envs, w, args.steps, args.substeps) for k in kinds]
-        for _ in range(args.rounds):
-            for p in prepared:
-                p.setdefault("run_s", []).append(p["run"]())
+        time_in_turn(prepared, args.rounds)
         for p in prepared:
-            p.pop("run")
             median = statistics.median(p["run_s"])
             p["env_steps_per_s"] = p["num_envs"] * p["steps"] / median
             p["us_per_env_step"] = 1e6 * median / (p["num_envs"] * p["steps"])

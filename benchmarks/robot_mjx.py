@@ -27,7 +27,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from benchmarks.common import compile_timed, machine_info, write_results
+from benchmarks.common import compile_timed, machine_info, time_in_turn, write_results
 from jaxnav.envs.robot import mazes
 from jaxnav.envs.robot.mjx_backend import MjxRobot
 
@@ -76,11 +76,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     robot = MjxRobot(args.slots, RADIUS, (10.0, 10.0))
     bank = mazes.stack_mazes(mazes.random_maze_bank(NUM_MAZES, num_slots=args.slots), args.slots)
     rows = [prepare(robot, bank, n, args.steps) for n in env_counts]
-    for _ in range(args.rounds):  # rows in turn, so a load change hits all of them
-        for r in rows:
-            r.setdefault("run_s", []).append(r["run"]())
+    time_in_turn(rows, args.rounds)
     for r in rows:
-        r.pop("run")
         median = statistics.median(r["run_s"])
         r["steps_per_s"] = r["num_envs"] * r["steps"] / median
         r["us_per_env_step"] = 1e6 * median / (r["num_envs"] * r["steps"])
