@@ -22,7 +22,7 @@ import numpy as np
 from jaxnav import run_dir
 from jaxnav.config import TrainConfig
 from jaxnav.evaluate import evaluate_seeds, mean_of
-from jaxnav.registration import make, registered_envs
+from jaxnav.registration import registered_envs
 from jaxnav.train import METRIC_NAMES, Trainer
 
 HELP = {
@@ -320,8 +320,7 @@ def evaluate_main(argv: Sequence[str] | None = None) -> int:
         config = dataclasses.replace(config, env=args.env or config.env, env_kwargs=env_kwargs)
         config.validate()
         trainer = Trainer(config)
-        trained_env, _ = make(**_env_of(run_dir.load_config(args.run)))
-        want = trained_env.observation_space().shape
+        want = (run_dir.load_network(args.run)["obs_size"],)
         if trainer.env.observation_space().shape != want:
             raise ValueError(
                 f"--env {config.env}: observations of shape "
@@ -351,7 +350,3 @@ def evaluate_main(argv: Sequence[str] | None = None) -> int:
     print_eval_table(config.env, {args.policy: mean_of(rows)})
     print(f"wrote {out}")
     return 0
-
-
-def _env_of(config: TrainConfig) -> dict[str, Any]:
-    return {"env_id": config.env, **config.env_kwargs}

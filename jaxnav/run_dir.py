@@ -121,3 +121,11 @@ def load_config(run: Path) -> TrainConfig:
         return config_from_json(json.loads(path.read_text())["config"])
     except (KeyError, TypeError, json.JSONDecodeError) as e:
         raise ValueError(f"{path}: unreadable run config ({e})") from None
+
+
+def load_network(run: Path) -> dict[str, Any]:
+    """The network description saved with the run (sizes, flags, ``obs_size``)."""
+    try:
+        return json.loads((run / "config.json").read_text())["network"]
+    except (OSError, KeyError, TypeError, json.JSONDecodeError) as e:
+        raise ValueError(f"{run / 'config.json'}: unreadable network description ({e})") from None

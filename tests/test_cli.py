@@ -122,3 +122,12 @@ def test_cli_process_exit_code_and_help():
         text=True,
     )
     assert missing.returncode == 2 and "no config.json" in missing.stderr
+
+
+def test_evaluate_refuses_an_env_whose_observations_do_not_fit(tiny_run, capsys):
+    assert evaluate_main([str(tiny_run), "--env", "GridMaze-Random-v0"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == (
+        "jaxnav.evaluate: error: --env GridMaze-Random-v0: observations of shape (31,) "
+        "do not fit the run's network (34,)"
+    )
