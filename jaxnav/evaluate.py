@@ -39,31 +39,57 @@ def run_episodes(
     obs, state = jax.vmap(env.reset, in_axes=(0, None))(
         jax.random.split(k_reset, num_episodes), params
     )
+    return play(env, params, policy, k_run, obs, state, max_steps)
+
+
+def play(
+    env: Environment,
+    params: EnvParams,
+    policy: Policy,
+    key: jax.Array,
+    obs: jax.Array,
+    state: Any,
+    max_steps: int,
+    record: bool = False,
+) -> dict[str, jax.Array]:
+    """Play the episodes that start at ``(obs, state)`` (a batch, e.g. from ``env.reset_to``
+    for a fixed test suite) for ``max_steps`` steps; per-episode outcomes.
+
+    Steps without auto-reset: an ended episode's state stays as it ended, so ``record=True``
+    also returns ``"states"``, the batch's states before the first step and after each one
+    (leading axis ``max_steps + 1``), the final pose included.
+    """
+    num_episodes = obs.shape[0]
     shortest = getattr(state, "shortest_path", jnp.full(num_episodes, -1, jnp.int32))
     zeros = jnp.zeros(num_episodes)
     false = jnp.zeros(num_episodes, bool)
     init = (obs, state, false, zeros, zeros, false, false, false)
+    freeze = lambda ended, old, new: jax.tree.map(  # noqa: E731
+        lambda o, n: jnp.where(ended.reshape(ended.shape + (1,) * (n.ndim - 1)), o, n), old, new
+    )
 
     def step(carry, key):
         obs, state, ended, ret, steps, success, collision, timeout = carry
         k_pol, k_env = jax.random.split(key)
         action = policy(k_pol, obs)
-        obs, state, reward, terminated, truncated, info = jax.vmap(
-            env.step, in_axes=(0, 0, 0, None)
+        new_obs, new_state, reward, terminated, info = jax.vmap(
+            env.step_env, in_axes=(0, 0, 0, None)
         )(jax.random.split(k_env, num_episodes), state, action, params)
+        truncated = (new_state.time >= params.max_steps_in_episode) & ~terminated
         live = ~ended
         ret = ret + jnp.where(live, reward, 0.0)
         steps = steps + live
         success = success | (live & info["goal_reached"])
         collision = collision | (live & info["collision"])
         timeout = timeout | (live & truncated)
+        obs, state = freeze(ended, (obs, state), (new_obs, new_state))
         ended = ended | terminated | truncated
-        return (obs, state, ended, ret, steps, success, collision, timeout), None
+        carry = (obs, state, ended, ret, steps, success, collision, timeout)
+        return carry, (state if record else None)
 
-    keys = jax.random.split(k_run, max_steps)
-    carry, _ = jax.lax.scan(step, init, keys)
+    carry, states = jax.lax.scan(step, init, jax.random.split(key, max_steps))
     _, _, _, ret, steps, success, collision, timeout = carry
-    return {
+    out = {
         "return": ret,
         "steps": steps,
         "success": success,
@@ -71,6 +97,9 @@ def run_episodes(
         "timeout": timeout,
         "shortest_path": shortest,
     }
+    if record:
+        out["states"] = jax.tree.map(lambda a, b: jnp.concatenate([a[None], b]), state, states)
+    return out
 
 
 def summarize(episodes: dict[str, jax.Array]) -> dict[str, float]:
