@@ -137,30 +137,25 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
 
 
 class Progress:
-    """Progress lines from the scan's host callback (one call per seed and log interval)."""
+    """Progress lines, one per logging interval, printed between the compiled intervals."""
 
     def __init__(self, config: TrainConfig, quiet: bool):
         self.config, self.quiet = config, quiet
-        self.pending: dict[int, list[dict]] = {}
         self.times: dict[int, float] = {}
         self.start = time.perf_counter()
 
-    def __call__(self, metrics: dict[str, Any]) -> None:
-        steps = int(metrics["env_steps"])
-        rows = self.pending.setdefault(steps, [])
-        rows.append({k: float(v) for k, v in metrics.items()})
-        if len(rows) < self.config.num_seeds:
-            return
+    def __call__(self, metrics: dict[str, np.ndarray]) -> None:
+        """``metrics`` of one logging interval, every seed (leading axis)."""
+        steps = int(np.ravel(metrics["env_steps"])[0])
         now = time.perf_counter()
         self.times[steps] = now
-        del self.pending[steps]
         if self.quiet:
             return
         elapsed = now - self.start
         total = self.config.num_logs * self.config.iterations_per_log * self.config.num_envs
         sps = steps * self.config.num_seeds / max(elapsed, 1e-9)
         eta = (total - steps) * self.config.num_seeds / max(sps, 1e-9)
-        mean = lambda k: np.mean([r[k] for r in rows])  # noqa: E731
+        mean = lambda k: float(np.mean(metrics[k]))  # noqa: E731
         print(
             f"[{elapsed:6.1f}s] steps {steps:>9,}/{total:,} ({100 * steps / total:3.0f}%) | "
             f"{sps:>8,.0f} steps/s | success {mean('success_rate'):.3f} | "
@@ -202,7 +197,7 @@ def train_main(argv: Sequence[str] | None = None) -> int:
         out = args.out or Path("runs") / f"{config.env}-{time.strftime('%Y%m%d-%H%M%S')}"
         run_dir.check_writable(out)
         progress = Progress(config, args.quiet)
-        trainer = Trainer(config, progress=progress)
+        trainer = Trainer(config)
     except (UsageError, ValueError) as e:
         return _fail(prog, str(e))
 
@@ -214,14 +209,25 @@ def train_main(argv: Sequence[str] | None = None) -> int:
         flush=True,
     )
     t0 = time.perf_counter()
-    train = jax.jit(jax.vmap(trainer.train)).lower(keys).compile()
+    # One compiled logging interval, called once per interval, with progress printed in
+    # between: a host callback inside the program would keep XLA's persistent cache from
+    # storing it (JAX does not cache programs with host callbacks).
+    init = jax.jit(jax.vmap(trainer.init)).lower(keys).compile()
+    one_interval = jax.vmap(lambda ts, log: trainer.run(ts, log, 1), in_axes=(0, None))
+    state_like = jax.eval_shape(jax.vmap(trainer.init), keys)
+    log_like = jax.ShapeDtypeStruct((), np.int32)
+    interval = jax.jit(one_interval, donate_argnums=0).lower(state_like, log_like).compile()
     compile_s = time.perf_counter() - t0
     print(f"compiled in {compile_s:.1f}s", flush=True)
     progress.start = t0 = time.perf_counter()
-    state, metrics = jax.block_until_ready(train(keys))
+    state, chunks = init(keys), []
+    for log in range(config.num_logs):
+        state, chunk = interval(state, np.int32(log))
+        chunks.append(jax.device_get(chunk))  # [seeds, 1] each
+        progress(chunks[-1])
     train_s = time.perf_counter() - t0
 
-    metrics = {k: np.asarray(metrics[k]) for k in METRIC_NAMES}
+    metrics = {k: np.concatenate([c[k] for c in chunks], axis=1) for k in METRIC_NAMES}
     metrics["sps"] = np.broadcast_to(
         progress.steps_per_second(metrics["env_steps"][0]), metrics["env_steps"].shape
     )
