@@ -72,11 +72,7 @@ class TrainState:
 class Trainer:
     """Builds the environment, network and the compiled pieces of a training run."""
 
-    def __init__(
-        self,
-        config: TrainConfig,
-        progress: Callable[[dict[str, Any]], None] | None = None,
-    ):
+    def __init__(self, config: TrainConfig):
         config.validate()
         self.config = config
         self.env, self.env_params = make(config.env, **config.env_kwargs)
@@ -86,7 +82,6 @@ class Trainer:
             dueling=config.dueling,
         )
         self.obs_size = self.env.observation_space(self.env_params).shape[0]
-        self.progress = progress
 
     # -- pieces ---------------------------------------------------------------------
     def default_hparams(self) -> HParams:
@@ -243,8 +238,6 @@ class Trainer:
             "epsilon": self.epsilon(ts.hparams, env_steps),
             "lr": self.learning_rate(ts.hparams, updates_done * c.updates_per_iteration),
         }
-        if self.progress is not None:
-            jax.debug.callback(self.progress, metrics)
         return ts, metrics
 
     # -- whole runs -----------------------------------------------------------------
@@ -262,11 +255,12 @@ class Trainer:
         return lambda key, obs: jnp.argmax(self.network.apply(params, obs), axis=-1)
 
 
-def make_train(
-    config: TrainConfig, progress: Callable[[dict[str, Any]], None] | None = None
-) -> Callable[..., tuple[TrainState, dict]]:
-    """PureJaxRL-style: ``train(key, hparams=None) -> (final TrainState, metrics per log)``."""
-    return Trainer(config, progress).train
+def make_train(config: TrainConfig) -> Callable[..., tuple[TrainState, dict]]:
+    """PureJaxRL-style: ``train(key, hparams=None) -> (final TrainState, metrics per log)``.
+
+    No host callback inside: progress is printed between logging intervals by the caller
+    (``Trainer.run``), so the compiled program can be stored in JAX's persistent cache."""
+    return Trainer(config).train
 
 
 if __name__ == "__main__":
