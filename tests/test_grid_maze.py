@@ -348,22 +348,29 @@ def _rollout_fn(env, n, steps):
             out = jax.vmap(env.step, in_axes=(0, 0, 0, None))(
                 jax.random.split(k_step, n), state, action, params
             )
-            return out[1], out[1:]
+            return out[1], out
 
         return jax.lax.scan(body, state, jax.random.split(k_run, steps))[1]
 
     return jax.jit(rollout)
 
 
+@pytest.mark.parametrize("env_fixture", ["maze", "random_maze"])  # GridMaze-v0, -Random-v0
 @settings(max_examples=10, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1))
-def test_rollout_invariants(random_maze, seed):
+def test_rollout_invariants(env_fixture, request, seed):
     """Random play over auto-resets: never on an obstacle or the goal, time below the limit,
-    reward terms sum to the reward, every fresh episode's shortest path is the BFS one."""
-    env, params = random_maze
-    state, reward, terminated, truncated, info = _rollout_fn(env, 8, 40)(
+    observations finite and in the observation space, rewards only the documented values and
+    the sum of their terms, every fresh episode's shortest path is the BFS one."""
+    env, params = request.getfixturevalue(env_fixture)
+    obs, state, reward, terminated, truncated, info = _rollout_fn(env, 8, 40)(
         jax.random.key(seed), params
     )
+    space = env.observation_space(params)
+    chex.assert_shape(obs, (40, 8, *space.shape))
+    assert np.isfinite(obs).all() and (obs >= space.low).all() and (obs <= space.high).all()
+    c = env.config
+    assert np.isin(reward, [c.goal_reward, c.collision_reward, c.step_reward]).all()
     obstacles = np.asarray(params.bank.obstacles)
     layout, pos, goal = (np.asarray(x) for x in (state.layout, state.pos, state.goal))
     time, shortest = np.asarray(state.time), np.asarray(state.shortest_path)

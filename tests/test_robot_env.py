@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 
 import chex
@@ -9,6 +10,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import jaxnav
 from jaxnav.envs.robot import geometry
@@ -108,40 +111,85 @@ def test_auto_reset_keeps_final_observation_and_truncates(simple):
     np.testing.assert_allclose(obs, env.get_obs(s, short))
 
 
-@pytest.mark.parametrize("env_id", ["RobotSimple-v0", "RobotComplex-v0", "RobotRandom-v0"])
-def test_vmapped_rollout_is_finite_and_never_inside_walls(env_id):
-    env, params = (
-        jaxnav.make(env_id, num_layouts=16) if env_id == "RobotRandom-v0" else jaxnav.make(env_id)
-    )
-    n = 64
-    chex.clear_trace_counter()  # the parametrized cases each define their own rollout
-    obs, s = jax.vmap(env.reset, in_axes=(0, None))(jax.random.split(KEY, n), params)
+# ------------------------------------------------------------ invariants (hypothesis)
+ROLLOUT_ENVS, ROLLOUT_STEPS, SHORT_LIMIT = 16, 60, 25  # the limit truncates within a rollout
+
+
+@functools.cache
+def rollout_fn(env_id: str, backend: str):
+    """``rollout(key) -> per step (pose, reward, terminated, truncated, info, obs, time)`` of
+    random play over auto-resets, jitted once per (env, backend) and reused by every example."""
+    kwargs = {"num_layouts": 16} if env_id == "RobotRandom-v0" else {}
+    env, params = jaxnav.make(env_id, backend=backend, max_steps=SHORT_LIMIT, **kwargs)
+    n = ROLLOUT_ENVS
 
     @jax.jit
-    @chex.assert_max_traces(n=1)
-    def rollout(s, key):
+    def rollout(key):
+        k_reset, k_run = jax.random.split(key)
+        _, s = jax.vmap(env.reset, in_axes=(0, None))(jax.random.split(k_reset, n), params)
+
         def body(s, k):
             ka, ks = jax.random.split(k)
             a = jax.random.randint(ka, (n,), 0, 4)
-            obs, s, r, te, tr, info = jax.vmap(env.step, in_axes=(0, 0, 0, None))(
+            obs, s_next, r, te, tr, info = jax.vmap(env.step, in_axes=(0, 0, 0, None))(
                 jax.random.split(ks, n), s, a, params
             )
             walls = params.bank.walls
             pen = jax.vmap(geometry.circle_box_penetration, in_axes=(0, None, 0, 0, 0))(
-                s.pose[:, :2],
+                s_next.pose[:, :2],
                 env.config.radius,
-                walls.center[s.layout],
-                walls.half_size[s.layout],
-                walls.active[s.layout],
+                walls.center[s_next.layout],
+                walls.half_size[s_next.layout],
+                walls.active[s_next.layout],
             )
-            return s, (obs, r, pen)
+            return s_next, (obs, r, te, tr, info, s.time, pen)
 
-        return jax.lax.scan(body, s, jax.random.split(key, 100))
+        return jax.lax.scan(body, s, jax.random.split(k_run, ROLLOUT_STEPS))[1]
 
-    s, (obs, r, pen) = rollout(s, jax.random.key(1))
+    return env, params, rollout
+
+
+@pytest.mark.parametrize(
+    "env_id, backend",
+    [
+        ("RobotSimple-v0", "kinematic"),
+        ("RobotComplex-v0", "kinematic"),
+        ("RobotRandom-v0", "kinematic"),
+        ("RobotRandom-v0", "mjx"),  # per-env walls: the MJX model's batched geom fields
+    ],
+)
+@settings(max_examples=8, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1))
+def test_rollout_invariants(env_id, backend, seed):
+    """Random play: obs finite, lasers in [0, 1], rewards only +10, -5 or the step reward of
+    that step, terminated exactly at goal or collision, episodes end by the step limit, the
+    robot never inside a wall: not at all on the kinematic backend, and by at most one
+    physics substep of travel (speed x timestep, 2 cm) on MJX, which detects contact after it."""
+    env, params, rollout = rollout_fn(env_id, backend)
+    obs, r, term, trunc, info, time_before, pen_after = rollout(jax.random.key(seed))
+    c = env.config
     chex.assert_tree_all_finite((obs, r))
-    assert float(pen.max()) == 0.0
-    assert np.all(np.isin(np.round(np.asarray(r), 4), [10.0, -5.0]) | ((r <= -0.5) & (r >= -1.0)))
+    frames = np.asarray(obs).reshape(ROLLOUT_STEPS, ROLLOUT_ENVS, c.frames, env.frame_size)
+    lasers, positions = frames[..., :NUM_LASERS], frames[..., NUM_LASERS : NUM_LASERS + 4]
+    assert (lasers >= 0).all() and (lasers <= 1).all()
+    assert (positions >= 0).all() and (positions <= 1).all()
+    goal, hit = np.asarray(info["goal_reached"]), np.asarray(info["collision"])
+    np.testing.assert_array_equal(np.asarray(term), goal | hit)
+    assert not (goal & hit).any() and hit.any()  # walls were hit: the bound below is tested
+    step_reward = c.step_reward_start + (c.step_reward_end - c.step_reward_start) * (
+        np.asarray(time_before) / SHORT_LIMIT
+    )
+    want = np.where(goal, c.goal_reward, np.where(hit, c.collision_reward, step_reward))
+    np.testing.assert_allclose(r, want, rtol=1e-6)
+    # episodes end by the limit: truncated exactly at its last step, never later
+    assert (np.asarray(time_before) < SHORT_LIMIT).all()
+    np.testing.assert_array_equal(
+        np.asarray(trunc), (np.asarray(time_before) == SHORT_LIMIT - 1) & ~np.asarray(term)
+    )
+    assert np.asarray(trunc).any()
+    bound = 0.0 if backend == "kinematic" else c.speed * c.dt / 5  # MJX: 5 substeps a step
+    assert float(np.max(info["penetration"])) <= bound + 1e-6
+    assert float(np.max(pen_after)) <= bound + 1e-6  # every state the env hands out
 
 
 def test_bad_robot_overrides_are_refused(tmp_path):
