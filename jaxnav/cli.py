@@ -187,6 +187,35 @@ def _fail(prog: str, message: str) -> int:
     return 2
 
 
+def train_seeds(
+    trainer: Trainer, keys: jax.Array, progress: Progress
+) -> tuple[Any, dict[str, np.ndarray], float, float]:
+    """Train every seed of ``keys`` at once; ``(final state, metrics [seeds, logs], compile
+    seconds, train seconds)``, with a progress line per logging interval.
+
+    One compiled logging interval, called once per interval, with progress printed in
+    between: a host callback inside the program would keep XLA's persistent cache from
+    storing it (JAX does not cache programs with host callbacks).
+    """
+    t0 = time.perf_counter()
+    init = jax.jit(jax.vmap(trainer.init)).lower(keys).compile()
+    one_interval = jax.vmap(lambda ts, log: trainer.run(ts, log, 1), in_axes=(0, None))
+    state_like = jax.eval_shape(jax.vmap(trainer.init), keys)
+    log_like = jax.ShapeDtypeStruct((), np.int32)
+    interval = jax.jit(one_interval, donate_argnums=0).lower(state_like, log_like).compile()
+    compile_s = time.perf_counter() - t0
+    print(f"compiled in {compile_s:.1f}s", flush=True)
+    progress.start = t0 = time.perf_counter()
+    state, chunks = init(keys), []
+    for log in range(trainer.config.num_logs):
+        state, chunk = interval(state, np.int32(log))
+        chunks.append(jax.device_get(chunk))  # [seeds, 1] each
+        progress(chunks[-1])
+    train_s = time.perf_counter() - t0
+    metrics = {k: np.concatenate([c[k] for c in chunks], axis=1) for k in METRIC_NAMES}
+    return state, metrics, compile_s, train_s
+
+
 def train_main(argv: Sequence[str] | None = None) -> int:
     prog = "jaxnav.train"
     t_start = time.perf_counter()
@@ -208,26 +237,7 @@ def train_main(argv: Sequence[str] | None = None) -> int:
         f"seed(s), {config.num_envs} envs each -> {out}",
         flush=True,
     )
-    t0 = time.perf_counter()
-    # One compiled logging interval, called once per interval, with progress printed in
-    # between: a host callback inside the program would keep XLA's persistent cache from
-    # storing it (JAX does not cache programs with host callbacks).
-    init = jax.jit(jax.vmap(trainer.init)).lower(keys).compile()
-    one_interval = jax.vmap(lambda ts, log: trainer.run(ts, log, 1), in_axes=(0, None))
-    state_like = jax.eval_shape(jax.vmap(trainer.init), keys)
-    log_like = jax.ShapeDtypeStruct((), np.int32)
-    interval = jax.jit(one_interval, donate_argnums=0).lower(state_like, log_like).compile()
-    compile_s = time.perf_counter() - t0
-    print(f"compiled in {compile_s:.1f}s", flush=True)
-    progress.start = t0 = time.perf_counter()
-    state, chunks = init(keys), []
-    for log in range(config.num_logs):
-        state, chunk = interval(state, np.int32(log))
-        chunks.append(jax.device_get(chunk))  # [seeds, 1] each
-        progress(chunks[-1])
-    train_s = time.perf_counter() - t0
-
-    metrics = {k: np.concatenate([c[k] for c in chunks], axis=1) for k in METRIC_NAMES}
+    state, metrics, compile_s, train_s = train_seeds(trainer, keys, progress)
     metrics["sps"] = np.broadcast_to(
         progress.steps_per_second(metrics["env_steps"][0]), metrics["env_steps"].shape
     )
@@ -240,19 +250,7 @@ def train_main(argv: Sequence[str] | None = None) -> int:
     partial = out.with_name(f".{out.name}.partial")
     shutil.rmtree(partial, ignore_errors=True)
     partial.mkdir(parents=True)
-    run_dir.write_json(
-        partial / "config.json",
-        {
-            "config": run_dir.config_to_json(config),
-            "network": {
-                "num_actions": trainer.env.num_actions,
-                "hidden_sizes": list(config.hidden_sizes),
-                "dueling": config.dueling,
-                "obs_size": trainer.obs_size,
-            },
-            "environment": run_dir.environment_info(),
-        },
-    )
+    run_dir.write_json(partial / "config.json", run_dir.config_document(config, trainer))
     run_dir.write_metrics_csv(partial / "metrics.csv", metrics, run_dir.seeds_of(config))
     run_dir.save_params(partial, state.params)
     summary = {
@@ -335,9 +333,7 @@ def evaluate_main(argv: Sequence[str] | None = None) -> int:
         out = args.out or args.run / "eval.json"
         if not out.parent.is_dir():
             raise ValueError(f"--out {out}: directory {out.parent} does not exist")
-        init = lambda k: trainer.network.init(k, np.zeros((1, trainer.obs_size)))  # noqa: E731
-        like = jax.eval_shape(jax.vmap(init), run_dir.seed_keys(config))
-        params = run_dir.load_params(args.run, like)
+        params = run_dir.load_trained_params(args.run, trainer)
     except (UsageError, ValueError, FileNotFoundError) as e:
         return _fail(prog, str(e))
     enable_compilation_cache()

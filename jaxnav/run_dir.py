@@ -129,3 +129,24 @@ def load_network(run: Path) -> dict[str, Any]:
         return json.loads((run / "config.json").read_text())["network"]
     except (OSError, KeyError, TypeError, json.JSONDecodeError) as e:
         raise ValueError(f"{run / 'config.json'}: unreadable network description ({e})") from None
+
+
+def config_document(config: TrainConfig, trainer: Any) -> dict[str, Any]:
+    """The contents of a run's config.json: effective config, network, software and machine."""
+    return {
+        "config": config_to_json(config),
+        "network": {
+            "num_actions": trainer.env.num_actions,
+            "hidden_sizes": list(config.hidden_sizes),
+            "dueling": config.dueling,
+            "obs_size": trainer.obs_size,
+        },
+        "environment": environment_info(),
+    }
+
+
+def load_trained_params(run: Path, trainer: Any) -> Any:
+    """The run's parameters (seeds stacked), shaped by ``trainer``'s network."""
+    init = lambda k: trainer.network.init(k, jnp.zeros((1, trainer.obs_size)))  # noqa: E731
+    like = jax.eval_shape(jax.vmap(init), seed_keys(trainer.config))
+    return load_params(run, like)
