@@ -1,0 +1,502 @@
+"""The paper's experiments in one command: train the agents on several seeds, test them and
+the random agent on the same fixed test episodes, write a results directory with figures.
+
+    python -m jaxnav.experiments paper-grid  [--quick] [--seeds 5] [--out DIR]
+    python -m jaxnav.experiments paper-robot [--quick] [--maze-file FILE]
+    python -m jaxnav.experiments plot DIR    # redraw the figures of a results directory
+
+Agents: ``dueling-double`` (the paper's model) and ``simple`` (plain DQN: dueling and double
+off), each trained on all seeds at once (one compiled ``jit(vmap(train))`` program per agent
+and training env), and ``random`` (a uniform action every step). Each test suite is a fixed
+list of (start, goal, layout) drawn once from ``SUITE_SEED`` and replayed with
+``env.reset_to``, so every agent and seed meets the same episodes.
+
+A results directory holds ``results.json`` (every number, per seed, with mean and 95%
+t-interval over seeds), ``results.md`` (the table), ``episodes.npz`` (per-episode outcomes
+and recorded trajectories), the figures (``jaxnav.plots``) and ``runs/<study>-<agent>/``, run
+directories as ``python -m jaxnav.train`` writes them (for ``jaxnav.evaluate`` and
+``jaxnav.render``). It is written to a hidden sibling and renamed when complete.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import shutil
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+from scipy import stats
+
+from jaxnav import run_dir
+from jaxnav.cli import (
+    Progress,
+    UsageError,
+    _fail,
+    _Parser,
+    enable_compilation_cache,
+    train_seeds,
+)
+from jaxnav.config import TrainConfig
+from jaxnav.environment import Environment, EnvParams
+from jaxnav.evaluate import play, random_policy, summarize
+from jaxnav.registration import env_config, make
+from jaxnav.train import Trainer
+
+AGENTS = {  # name -> the TrainConfig fields that make the agent
+    "dueling-double": {"dueling": True, "double": True},
+    "simple": {"dueling": False, "double": False},
+}
+RANDOM = "random"
+LABELS = {"dueling-double": "dueling double DQN", "simple": "simple DQN", RANDOM: "random agent"}
+SIZES = ("paper", "quick", "smoke")
+SUITE_SEED = 20_240  # test episodes; independent of the training seeds
+TRAJECTORY_EPISODES = 4  # recorded test episodes per suite (dueling-double, first seed)
+EXAMPLE_MAZE = Path(__file__).resolve().parent.parent / "examples" / "mazes" / "rooms.txt"
+METRICS = (
+    "success_rate",
+    "collision_rate",
+    "timeout_rate",
+    "mean_return",
+    "mean_steps",
+    "mean_episode_length",
+    "mean_path_ratio",
+)
+
+
+# ------------------------------------------------------------------------------ presets
+def grid_config(size: str) -> TrainConfig:
+    """The grid experiment: jaxnav's defaults are the paper's grid setting (Sec. IV-A)."""
+    paper = TrainConfig(env="GridMaze-v0")
+    if size == "quick":  # a few minutes on a 2-core CPU
+        return dataclasses.replace(
+            paper, total_timesteps=96_000, eps_decay_steps=48_000, log_interval=8_000
+        )
+    if size == "smoke":  # seconds; checks the plumbing, learns little
+        return _smoke(paper, {"size": 7})
+    return paper
+
+
+def robot_config(env_id: str, size: str) -> TrainConfig:
+    """THE robot training settings, for every robot env of ``paper-robot``: edit here.
+
+    For now jaxnav's TrainConfig defaults with the robot env; ``quick`` and ``smoke`` only
+    shrink the budget.
+    """
+    paper = TrainConfig(env=env_id)
+    if size == "quick":
+        return dataclasses.replace(
+            paper, total_timesteps=48_000, eps_decay_steps=24_000, log_interval=8_000
+        )
+    if size == "smoke":
+        return _smoke(paper, {})
+    return paper
+
+
+def _smoke(config: TrainConfig, env_kwargs: dict[str, Any]) -> TrainConfig:
+    return dataclasses.replace(
+        config,
+        env_kwargs=env_kwargs,
+        hidden_sizes=(32,),
+        num_envs=8,
+        total_timesteps=1_024,
+        learning_starts=256,
+        buffer_size=1_024,
+        batch_size=32,
+        log_interval=256,
+        eps_decay_steps=512,
+        target_update_period=128,
+    )
+
+
+@dataclasses.dataclass(frozen=True)
+class Suite:
+    """Fixed test episodes on one env. Layouts of the env's bank before ``first_layout`` are
+    left out (a random-maze agent trained on layouts 0..N-1 is tested on unseen ones)."""
+
+    name: str
+    env: str
+    env_kwargs: dict[str, Any] = dataclasses.field(default_factory=dict)
+    first_layout: int = 0
+
+
+@dataclasses.dataclass(frozen=True)
+class Study:
+    """One training env: the agents trained on it and the suites they are tested on."""
+
+    name: str
+    config: TrainConfig  # agent fields (dueling, double) are set per agent
+    suites: tuple[Suite, ...]
+
+
+def paper_grid(size: str) -> list[Study]:
+    config = grid_config(size)
+    return [Study("grid", config, (Suite(config.env, config.env, config.env_kwargs),))]
+
+
+def paper_robot(size: str, maze_file: Path) -> list[Study]:
+    studies = []
+    for name, env_id in (("simple", "RobotSimple-v0"), ("complex", "RobotComplex-v0")):
+        config = robot_config(env_id, size)
+        studies.append(Study(name, config, (Suite(env_id, env_id, config.env_kwargs),)))
+    config = robot_config("RobotRandom-v0", size)
+    seen = env_config(config.env, **config.env_kwargs).num_layouts
+    unseen = {**config.env_kwargs, "num_layouts": 2 * seen}  # layouts seen .. 2*seen-1
+    generalization = (
+        Suite(f"random mazes {seen}-{2 * seen - 1} (unseen)", config.env, unseen, seen),
+        Suite("RobotSimple-v0 (unseen)", "RobotSimple-v0"),
+        Suite("RobotComplex-v0 (unseen)", "RobotComplex-v0"),
+        Suite(f"{maze_file.name} (unseen)", "RobotMaze-v0", {"maze_file": str(maze_file)}),
+    )
+    studies.append(Study("random", config, generalization))
+    return studies
+
+
+# ---------------------------------------------------------------------------- test suites
+def draw_suite(
+    env: Environment, params: EnvParams, key: jax.Array, num: int
+) -> dict[str, jax.Array]:
+    """``num`` (start, goal, layout) triples, drawn once like fresh resets: a robot start is a
+    pose (x, y, heading), a grid start a cell (row, col)."""
+    _, states = jax.vmap(env.reset, in_axes=(0, None))(jax.random.split(key, num), params)
+    start = states.pose if hasattr(states, "pose") else states.pos
+    return {"start": start, "goal": states.goal, "layout": states.layout}
+
+
+def start_suite(env: Environment, params: EnvParams, suite: dict[str, jax.Array]):
+    """The suite's first observations and states, through ``env.reset_to``."""
+    key = jax.random.key(0)  # reset_to is deterministic
+    return jax.vmap(env.reset_to, in_axes=(None, None, 0, 0, 0))(
+        key, params, suite["start"], suite["goal"], suite["layout"]
+    )
+
+
+def suite_env(suite: Suite) -> tuple[Environment, EnvParams]:
+    env, params = make(suite.env, **suite.env_kwargs)
+    if suite.first_layout:
+        bank = jax.tree.map(lambda x: x[suite.first_layout :], params.bank)
+        params = params.replace(bank=bank)
+    return env, params
+
+
+def test_agent(
+    trainer: Trainer | None,
+    params: Any,
+    env: Environment,
+    env_params: EnvParams,
+    suite: dict[str, jax.Array],
+    key: jax.Array,
+    num_seeds: int,
+) -> dict[str, np.ndarray]:
+    """Per-episode outcomes [seeds, episodes] of each seed's greedy policy on the suite
+    (``trainer=None``: the random agent, one policy key per "seed")."""
+    obs, state = start_suite(env, env_params, suite)
+    max_steps = int(env_params.max_steps_in_episode)
+
+    def one(p, k):
+        policy = random_policy(env.num_actions) if trainer is None else trainer.greedy_policy(p)
+        return play(env, env_params, policy, k, obs, state, max_steps)
+
+    keys = jax.random.split(key, num_seeds)
+    out = jax.jit(jax.vmap(one, in_axes=(None if trainer is None else 0, 0)))(params, keys)
+    return {k: np.asarray(v) for k, v in out.items()}
+
+
+def summarize_seeds(episodes: dict[str, np.ndarray]) -> list[dict[str, float | None]]:
+    """``evaluate.summarize`` per seed, plus the mean length over all episodes; the path ratio
+    is None where no shortest path is known (robot)."""
+    rows = []
+    for i in range(episodes["success"].shape[0]):
+        one = {k: v[i] for k, v in episodes.items()}
+        row: dict[str, float | None] = dict(summarize(one))
+        row["mean_episode_length"] = float(one["steps"].mean())
+        if not one["success"].any():  # no successful episode: no steps to average
+            row["mean_steps"] = row["mean_path_ratio"] = None
+        if not (one["shortest_path"] > 0).any():
+            row["mean_path_ratio"] = None
+        rows.append(row)
+    return rows
+
+
+def mean_ci(values: Sequence[float | None]) -> dict[str, float | None]:
+    """Mean and the half-width of its 95% t-interval over seeds (None if undefined)."""
+    x = np.asarray([v for v in values if v is not None], float)
+    if len(x) == 0:
+        return {"mean": None, "ci95": None}
+    half = (
+        float(stats.t.ppf(0.975, len(x) - 1) * x.std(ddof=1) / np.sqrt(len(x)))
+        if len(x) > 1
+        else None
+    )
+    return {"mean": float(x.mean()), "ci95": half}
+
+
+# -------------------------------------------------------------------------------- running
+def run_experiment(
+    name: str,
+    studies: list[Study],
+    seeds: list[int],
+    test_episodes: dict[str, int],
+    out: Path,
+    quiet: bool = False,
+    command: str = "",
+) -> dict[str, Any]:
+    """Train, test and write ``out`` (see the module docstring); returns results.json's data."""
+    from jaxnav import plots, render  # matplotlib only once there is something to draw
+
+    t_start = time.perf_counter()
+    partial = out.with_name(f".{out.name}.partial")
+    shutil.rmtree(partial, ignore_errors=True)
+    (partial / "runs").mkdir(parents=True)
+    results: dict[str, Any] = {
+        "experiment": name,
+        "command": command,
+        "seeds": seeds,
+        "suite_seed": SUITE_SEED,
+        "machine": run_dir.environment_info(),
+        "training": {},
+        "suites": {},
+    }
+    arrays: dict[str, np.ndarray] = {}
+    num_jobs, job = len(studies) * len(AGENTS), 0
+    for s_i, study in enumerate(studies):
+        trained = {}
+        for agent, fields in AGENTS.items():
+            config = dataclasses.replace(
+                study.config, num_seeds=len(seeds), seed=seeds[0], **fields
+            )
+            job += 1
+            print(f"[{job}/{num_jobs}] {LABELS[agent]} on {config.env} ({study.name})", flush=True)
+            trained[agent] = _train(config, partial / "runs" / f"{study.name}-{agent}", quiet)
+            results["training"].setdefault(study.name, {})[agent] = trained[agent]["record"]
+        for suite in study.suites:
+            env, env_params = suite_env(suite)
+            n = test_episodes[study.name]
+            suite_key = jax.random.fold_in(jax.random.key(SUITE_SEED), s_i)
+            episodes = draw_suite(env, env_params, suite_key, n)
+            rows, t0 = {}, time.perf_counter()
+            for agent in (*AGENTS, RANDOM):
+                trainer = trained[agent]["trainer"] if agent != RANDOM else None
+                params = trained[agent]["params"] if agent != RANDOM else None
+                ep = test_agent(trainer, params, env, env_params, episodes, suite_key, len(seeds))
+                per_seed = summarize_seeds(ep)
+                rows[agent] = {
+                    "per_seed": per_seed,
+                    **{m: mean_ci([r[m] for r in per_seed]) for m in METRICS},
+                }
+                for k in ("return", "steps", "success", "collision", "timeout"):
+                    arrays[f"{suite.name}/{agent}/{k}"] = ep[k]
+            lead = trained["dueling-double"]
+            policy = lead["trainer"].greedy_policy(jax.tree.map(lambda x: x[0], lead["params"]))
+            first = jax.tree.map(lambda x: x[:TRAJECTORY_EPISODES], episodes)
+            obs, state = start_suite(env, env_params, first)
+            recorded = render.record(env, env_params, policy, obs, state)
+            for i, ep_arrays in enumerate(recorded):
+                for k, v in ep_arrays.items():
+                    arrays[f"{suite.name}/trajectory/{i}/{k}"] = np.asarray(v)
+            results["suites"][suite.name] = {
+                "study": study.name,
+                "env": suite.env,
+                "env_kwargs": suite.env_kwargs,
+                "first_layout": suite.first_layout,
+                "test_episodes": n,
+                "test_s": time.perf_counter() - t0,
+                "agents": rows,
+            }
+            print_rows(suite.name, rows)
+    results["wall_s_before_figures"] = time.perf_counter() - t_start
+    np.savez_compressed(partial / "episodes.npz", **arrays)
+    run_dir.write_json(partial / "results.json", results)
+    (partial / "results.md").write_text(results_markdown(results))
+    plots.draw_all(partial, results, arrays)
+    results["wall_s"] = time.perf_counter() - t_start
+    run_dir.write_json(partial / "results.json", results)
+    (partial / "results.md").write_text(results_markdown(results))
+    if out.exists():
+        out.rmdir()  # checked empty before any work
+    partial.rename(out)
+    print(f"\nwall time {results['wall_s']:.0f}s; results in {out}")
+    return results
+
+
+def _train(config: TrainConfig, path: Path, quiet: bool) -> dict[str, Any]:
+    """One agent on all seeds in one compiled program; its run directory written to ``path``."""
+    trainer = Trainer(config)
+    state, metrics, compile_s, train_s = train_seeds(
+        trainer, run_dir.seed_keys(config), Progress(config, quiet)
+    )
+    path.mkdir()
+    run_dir.write_json(path / "config.json", run_dir.config_document(config, trainer))
+    run_dir.write_metrics_csv(path / "metrics.csv", metrics, run_dir.seeds_of(config))
+    run_dir.save_params(path, state.params)
+    print(f"    compile {compile_s:.1f}s, train {train_s:.1f}s", flush=True)
+    record = {
+        "env": config.env,
+        "config": run_dir.config_to_json(config),
+        "compile_s": compile_s,
+        "train_s": train_s,
+        "metrics": {k: v.tolist() for k, v in metrics.items()},
+    }
+    return {"trainer": trainer, "params": state.params, "record": record}
+
+
+# -------------------------------------------------------------------------------- tables
+def _cell(stat: dict[str, float | None], digits: int = 3) -> str:
+    if stat["mean"] is None:
+        return "n/a"
+    ci = "" if stat["ci95"] is None else f" ± {stat['ci95']:.{digits}f}"
+    return f"{stat['mean']:.{digits}f}{ci}"
+
+
+def results_markdown(results: dict[str, Any]) -> str:
+    """The results table: per suite and agent, mean ± 95% CI over seeds."""
+    n_seeds = len(results["seeds"])
+    head = (
+        "| suite | agent | success | collision | timeout | mean return | mean steps "
+        "(successes) | mean episode length | path ratio |\n" + "|---" * 9 + "|\n"
+    )
+    lines = [
+        f"# {results['experiment']}\n",
+        f"Mean ± 95% t-interval over {n_seeds} seeds (random agent: {n_seeds} policy keys); "
+        "each agent meets the same fixed test episodes of a suite. Mean steps and path ratio "
+        "(steps / BFS shortest path, grid only) are over successful episodes.\n\n",
+        head,
+    ]
+    for suite_name, suite in results["suites"].items():
+        for agent, row in suite["agents"].items():
+            cells = [_cell(row[m], 2 if "steps" in m or "length" in m else 3) for m in METRICS]
+            lines.append(f"| {suite_name} | {LABELS[agent]} | " + " | ".join(cells) + " |\n")
+    trained = results["training"]
+    lines.append("\nTraining (all seeds in one program per agent):\n\n")
+    lines.append("| study | agent | env | env steps per seed | compile s | train s |\n")
+    lines.append("|---|---|---|---|---|---|\n")
+    for study, agents in trained.items():
+        for agent, rec in agents.items():
+            lines.append(
+                f"| {study} | {LABELS[agent]} | {rec['env']} | "
+                f"{rec['metrics']['env_steps'][0][-1]:,} | {rec['compile_s']:.1f} | "
+                f"{rec['train_s']:.1f} |\n"
+            )
+    if "wall_s" in results:
+        lines.append(f"\nWall time {results['wall_s']:.0f} s. Command: `{results['command']}`\n")
+    return "".join(lines)
+
+
+def print_rows(suite: str, rows: dict[str, Any]) -> None:
+    print(f"  {suite}:")
+    for agent, row in rows.items():
+        print(
+            f"    {LABELS[agent]:<20} success {_cell(row['success_rate'])}  "
+            f"return {_cell(row['mean_return'], 2)}  steps {_cell(row['mean_steps'], 1)}",
+            flush=True,
+        )
+
+
+# ---------------------------------------------------------------------------- command line
+def parser() -> argparse.ArgumentParser:
+    common = argparse.ArgumentParser(add_help=False)
+    size = common.add_mutually_exclusive_group()
+    size.add_argument("--quick", action="store_true", help="a few minutes on a laptop CPU")
+    size.add_argument("--smoke", action="store_true", help="seconds; for tests (learns little)")
+    common.add_argument("--seeds", type=int, default=5, help="training seeds per agent (>= 2)")
+    common.add_argument("--seed", type=int, default=0, help="first seed")
+    common.add_argument("--total-timesteps", type=int, help="env steps per seed (overrides)")
+    common.add_argument("--test-episodes", type=int, help="episodes per test suite")
+    common.add_argument("--out", type=Path, help="results directory (default: runs/<name>-<time>)")
+    common.add_argument("--quiet", action="store_true", help="no per-interval progress lines")
+    p = _Parser(prog="python -m jaxnav.experiments", description=__doc__.split("\n\n")[0])
+    sub = p.add_subparsers(dest="experiment", required=True, parser_class=_Parser)
+    sub.add_parser(
+        "paper-grid",
+        parents=[common],
+        help="Fig. 4: grid, 1000 test episodes",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    robot = sub.add_parser(
+        "paper-robot",
+        parents=[common],
+        help="Fig. 7: robot mazes and generalization, 100 test episodes",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    robot.add_argument(
+        "--maze-file",
+        type=Path,
+        default=EXAMPLE_MAZE,
+        help="a maze never trained on, for the generalization rows",
+    )
+    plot = sub.add_parser("plot", help="redraw the figures of a results directory")
+    plot.add_argument("dir", type=Path)
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    prog = "jaxnav.experiments"
+    try:
+        args = parser().parse_args(argv)
+        if args.experiment == "plot":
+            return _replot(args.dir)
+        size = "quick" if args.quick else "smoke" if args.smoke else "paper"
+        if not 2 <= args.seeds <= 4096:
+            raise UsageError(f"--seeds {args.seeds}: must be in [2, 4096] (a CI needs 2)")
+        if args.seed < 0:
+            raise UsageError(f"--seed {args.seed}: must be non-negative")
+        if args.test_episodes is not None and not 1 <= args.test_episodes <= 10**6:
+            raise UsageError(f"--test-episodes {args.test_episodes}: must be in [1, 1000000]")
+        if args.experiment == "paper-grid":
+            studies = paper_grid(size)
+        else:
+            if not args.maze_file.is_file():
+                raise UsageError(f"--maze-file {args.maze_file}: no such file")
+            studies = paper_robot(size, args.maze_file.resolve())
+        if args.total_timesteps is not None:
+            studies = [
+                dataclasses.replace(
+                    s, config=dataclasses.replace(s.config, total_timesteps=args.total_timesteps)
+                )
+                for s in studies
+            ]
+        for study in studies:  # every value checked before anything is trained or written
+            study.config.validate()
+            for suite in study.suites:
+                cfg = env_config(suite.env, **suite.env_kwargs)
+                if suite.first_layout and cfg.num_layouts <= suite.first_layout:
+                    raise UsageError(f"suite {suite.name}: no layouts after {suite.first_layout}")
+        default_episodes = 1000 if args.experiment == "paper-grid" else 100
+        if size == "smoke":
+            default_episodes = 20
+        episodes = {s.name: args.test_episodes or default_episodes for s in studies}
+        out = args.out or Path("runs") / f"{args.experiment}-{time.strftime('%Y%m%d-%H%M%S')}"
+        run_dir.check_writable(out)
+    except (UsageError, ValueError) as e:
+        return _fail(prog, str(e))
+    enable_compilation_cache()
+    seeds = [args.seed + i for i in range(args.seeds)]
+    command = "python -m jaxnav.experiments " + " ".join(
+        sys.argv[1:] if argv is None else list(argv)
+    )
+    run_experiment(args.experiment, studies, seeds, episodes, out, args.quiet, command)
+    return 0
+
+
+def _replot(directory: Path) -> int:
+    from jaxnav import plots
+
+    try:
+        results = json.loads((directory / "results.json").read_text())
+        with np.load(directory / "episodes.npz") as f:
+            arrays = dict(f)
+    except (OSError, ValueError, KeyError) as e:
+        return _fail("jaxnav.experiments", f"{directory}: not a results directory ({e})")
+    plots.draw_all(directory, results, arrays)
+    print(f"figures redrawn in {directory}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,197 @@
+"""Figures of an experiment's results directory (``jaxnav.experiments``), as PNG files.
+
+``draw_all`` reads only ``results.json``'s data and ``episodes.npz``'s arrays, so a results
+directory can be redrawn (``python -m jaxnav.experiments plot DIR``) or loaded in a notebook:
+
+- ``training_curves.png``: per training env, loss (log scale), return, episode length and
+  success rate over env steps; mean and 95% t-band over seeds per agent.
+- ``test_comparison.png``: per test suite, return and steps of each test episode (mean over
+  seeds) per agent, as the paper's Fig. 4d/e and 7a/b.
+- ``outcomes.png``: per test suite, success / collision / timeout rates per agent, with 95%
+  intervals over seeds.
+- ``trajectories.png``: recorded test episodes of the dueling double DQN (first seed).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")  # files only; notebooks show the returned figures themselves
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+from scipy import stats  # noqa: E402
+
+from jaxnav import render  # noqa: E402
+from jaxnav.experiments import LABELS  # noqa: E402
+
+COLORS = {"dueling-double": "tab:blue", "simple": "tab:orange", "random": "tab:gray"}
+CURVES = (
+    ("loss", "TD loss (log scale)"),
+    ("mean_return", "episode return"),
+    ("mean_length", "episode length (steps)"),
+    ("success_rate", "success rate"),
+)
+FIRST_EPISODES = 100  # test episodes shown one by one in the comparison
+
+
+def _band(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mean over axis 0 and the half-width of its 95% t-interval."""
+    n = x.shape[0]
+    mean = x.mean(axis=0)
+    if n < 2:
+        return mean, np.zeros_like(mean)
+    return mean, stats.t.ppf(0.975, n - 1) * x.std(axis=0, ddof=1) / np.sqrt(n)
+
+
+def training_curves(results: dict[str, Any]) -> Any:
+    studies = results["training"]
+    n_seeds = len(results["seeds"])
+    fig, axes = plt.subplots(
+        len(studies), len(CURVES), figsize=(4 * len(CURVES), 3.2 * len(studies)), squeeze=False
+    )
+    for row, agents in zip(axes, studies.values(), strict=True):
+        for ax, (metric, label) in zip(row, CURVES, strict=True):
+            for agent, rec in agents.items():
+                m = rec["metrics"]
+                steps = np.asarray(m["env_steps"][0])
+                values = np.asarray(m[metric], float)
+                if metric == "loss":  # no updates yet during warm-up: nothing to plot
+                    values = np.where(values > 0, values, np.nan)
+                mean, half = _band(values)
+                ax.plot(steps, mean, color=COLORS[agent], label=LABELS[agent])
+                ax.fill_between(steps, mean - half, mean + half, color=COLORS[agent], alpha=0.25)
+            if metric == "loss":
+                ax.set_yscale("log")
+            if metric == "success_rate":
+                ax.set_ylim(-0.02, 1.02)
+            ax.set_xlabel("env steps per seed")
+            ax.set_title(f"{next(iter(agents.values()))['env']}: {label}", fontsize=10)
+            ax.grid(alpha=0.3)
+        row[0].legend(fontsize=8)
+    fig.suptitle(
+        f"Training (epsilon-greedy episodes), mean and 95% CI over {n_seeds} seeds", fontsize=11
+    )
+    fig.tight_layout()
+    return fig
+
+
+def test_comparison(results: dict[str, Any], arrays: dict[str, np.ndarray]) -> Any:
+    suites = results["suites"]
+    fig, axes = plt.subplots(len(suites), 2, figsize=(12, 3.2 * len(suites)), squeeze=False)
+    for row, (name, suite) in zip(axes, suites.items(), strict=True):
+        shown = min(FIRST_EPISODES, suite["test_episodes"])
+        x = np.arange(1, shown + 1)
+        for ax, key, label in zip(row, ("return", "steps"), ("return", "steps"), strict=True):
+            for agent in suite["agents"]:
+                per_episode = np.asarray(arrays[f"{name}/{agent}/{key}"], float).mean(axis=0)
+                ax.plot(
+                    x,
+                    per_episode[:shown],
+                    color=COLORS[agent],
+                    lw=1,
+                    marker=".",
+                    ms=3,
+                    label=f"{LABELS[agent]} (mean of all {suite['test_episodes']}: "
+                    f"{per_episode.mean():.2f})",
+                )
+            ax.set_xlabel(f"test episode (first {shown} of {suite['test_episodes']})")
+            ax.set_ylabel(f"{label} per episode (mean over seeds)")
+            ax.set_title(f"{name}: {label} per test episode", fontsize=10)
+            ax.grid(alpha=0.3)
+            ax.legend(fontsize=7)
+    fig.tight_layout()
+    return fig
+
+
+def outcomes(results: dict[str, Any]) -> Any:
+    suites = results["suites"]
+    cols = min(3, len(suites))
+    rows = -(-len(suites) // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(5 * cols, 3.6 * rows), squeeze=False)
+    kinds = (
+        ("success_rate", "success"),
+        ("collision_rate", "collision"),
+        ("timeout_rate", "timeout"),
+    )
+    for ax, (name, suite) in zip(axes.ravel(), suites.items(), strict=False):
+        agents = list(suite["agents"])
+        width = 0.8 / len(agents)
+        for i, agent in enumerate(agents):
+            row = suite["agents"][agent]
+            means = [row[k]["mean"] for k, _ in kinds]
+            half = [row[k]["ci95"] or 0.0 for k, _ in kinds]
+            # the interval clipped to [0, 1]: rates cannot leave it
+            errs = [np.minimum(half, means), np.minimum(half, 1 - np.asarray(means))]
+            pos = np.arange(len(kinds)) + (i - (len(agents) - 1) / 2) * width
+            bars = ax.bar(
+                pos, means, width, yerr=errs, capsize=3, color=COLORS[agent], label=LABELS[agent]
+            )
+            ax.bar_label(bars, labels=[f"{m:.2f}" for m in means], fontsize=7, padding=2)
+        ax.set_xticks(np.arange(len(kinds)), [label for _, label in kinds])
+        ax.set_ylim(0, 1.12)
+        ax.set_ylabel(f"rate over {suite['test_episodes']} test episodes")
+        ax.set_title(name, fontsize=10)
+        ax.grid(axis="y", alpha=0.3)
+    for ax in axes.ravel()[len(suites) :]:
+        ax.axis("off")
+    axes[0, 0].legend(fontsize=7, loc="upper right")
+    fig.suptitle(f"Test outcomes, mean and 95% CI over {len(results['seeds'])} seeds", fontsize=11)
+    fig.tight_layout()
+    return fig
+
+
+def trajectory_episodes(arrays: dict[str, np.ndarray], suite: str) -> list[render.Episode]:
+    prefix = f"{suite}/trajectory/"
+    episodes: dict[int, render.Episode] = {}
+    for key, value in arrays.items():
+        if key.startswith(prefix):
+            index, field = key[len(prefix) :].split("/")
+            episodes.setdefault(int(index), {})[field] = value
+    return [episodes[i] for i in sorted(episodes)]
+
+
+def trajectories(results: dict[str, Any], arrays: dict[str, np.ndarray]) -> Any:
+    suites = [s for s in results["suites"] if trajectory_episodes(arrays, s)]
+    cols = max(len(trajectory_episodes(arrays, s)) for s in suites)
+    fig, axes = plt.subplots(
+        len(suites), cols, figsize=(3.4 * cols, 3.6 * len(suites)), squeeze=False
+    )
+    for row, suite in zip(axes, suites, strict=True):
+        episodes = trajectory_episodes(arrays, suite)
+        for ax, ep in zip(row, episodes, strict=False):
+            render.draw_episode(ax, ep)
+        for ax in row[len(episodes) :]:
+            ax.axis("off")
+        row[0].set_ylabel(suite, fontsize=9)
+    axes[0, 0].legend(loc="upper left", fontsize=7, framealpha=0.9)
+    lasers = any(ep["laser_angles"].size for ep in trajectory_episodes(arrays, suites[0]))
+    fig.suptitle(
+        "Dueling double DQN (first seed, greedy) on test episodes: path, start, goal"
+        + (", laser rays at 4 steps" if lasers else ""),
+        fontsize=11,
+    )
+    fig.tight_layout()
+    return fig
+
+
+def draw_all(directory: Path, results: dict[str, Any], arrays: dict[str, np.ndarray]) -> list[Path]:
+    """Write every figure into ``directory``; returns their paths."""
+    figures = {
+        "training_curves.png": training_curves(results),
+        "test_comparison.png": test_comparison(results, arrays),
+        "outcomes.png": outcomes(results),
+        "trajectories.png": trajectories(results, arrays),
+    }
+    paths = []
+    for name, fig in figures.items():
+        path = Path(directory) / name
+        tmp = path.with_name(f".{path.stem}.partial.png")
+        fig.savefig(tmp, dpi=110)
+        plt.close(fig)
+        os.replace(tmp, path)
+        paths.append(path)
+    return paths

@@ -1,0 +1,307 @@
+"""Trajectories as pictures: record episodes inside jit, draw them outside on numpy.
+
+    python -m jaxnav.render RUN_DIR --episodes 4 --out traj.gif   # animated
+    python -m jaxnav.render RUN_DIR --episodes 4 --out traj.png   # paths and laser fans
+
+``record`` plays episodes with ``evaluate.play(record=True)`` (one compiled scan that returns
+every state, and for the robot the 7 laser ranges of every pose) and turns each episode into a
+dict of numpy arrays in metres (grid: cells of side 1, row 0 at the top): the path, headings,
+lasers, goal, outcome and the maze's wall rectangles. ``draw_episode`` and ``save_gif`` only
+read those arrays, so a recorded episode can be saved (``np.savez``) and drawn later.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+import os
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+
+from jaxnav import run_dir
+from jaxnav.cli import UsageError, _add_env_args, _fail, _Parser, enable_compilation_cache
+from jaxnav.environment import Environment, EnvParams
+from jaxnav.evaluate import Policy, play, random_policy
+
+OUTCOMES = ("success", "collision", "timeout")
+Episode = dict[str, np.ndarray]
+
+
+def record(
+    env: Environment,
+    env_params: EnvParams,
+    policy: Policy,
+    obs: jax.Array,
+    state: Any,
+    key: jax.Array | None = None,
+) -> list[Episode]:
+    """Play the batch of episodes starting at ``(obs, state)`` to their end; one ``Episode``
+    (numpy arrays, see the module docstring) per episode."""
+    max_steps = int(env_params.max_steps_in_episode)
+    has_lasers = hasattr(env, "lasers")
+
+    def rollout(obs, state, key):
+        out = play(env, env_params, policy, key, obs, state, max_steps, record=True)
+        if has_lasers:  # [T+1, N, 7] ranges in metres, from the recorded poses
+            lasers = lambda s: env.lasers(s.pose, s.layout, env_params)  # noqa: E731
+            out["lasers"] = jax.vmap(jax.vmap(lasers))(out["states"])
+        return out
+
+    key = jax.random.key(0) if key is None else key
+    out = jax.tree.map(np.asarray, jax.jit(rollout)(obs, state, key))
+    return [_episode(env, env_params, out, i) for i in range(obs.shape[0])]
+
+
+def _episode(env: Environment, env_params: EnvParams, out: dict[str, Any], i: int) -> Episode:
+    steps = int(out["steps"][i])
+    states = jax.tree.map(lambda x: x[: steps + 1, i], out["states"])
+    layout = int(states.layout[0])
+    bank = env_params.bank
+    outcome = OUTCOMES.index(
+        "success" if out["success"][i] else "collision" if out["collision"][i] else "timeout"
+    )
+    common = {
+        "steps": np.int32(steps),
+        "outcome": np.int32(outcome),
+        "return": np.float32(out["return"][i]),
+        "shortest_path": np.int32(out["shortest_path"][i]),
+    }
+    if hasattr(states, "pose"):  # robot: metres already; walls are boxes
+        walls = jax.tree.map(lambda x: np.asarray(x[layout]), bank.walls)
+        act = walls.active
+        corner = walls.center[act] - walls.half_size[act]
+        return common | {
+            "xy": states.pose[:, :2],
+            "heading": states.pose[:, 2],
+            "lasers": out["lasers"][: steps + 1, i],
+            "laser_angles": np.asarray(env.angles),
+            "goal": states.goal[0],
+            "walls": np.concatenate([corner, 2 * walls.half_size[act]], axis=1),
+            "arena": np.asarray(env.arena, np.float32),
+            "goal_radius": np.float32(env_params.goal_radius),
+            "radius": np.float32(env.config.radius),
+        }
+    size = env.size  # grid: cell (row, col) -> centre (col + 0.5, size - row - 0.5)
+    to_xy = lambda rc: np.stack([rc[..., 1] + 0.5, size - rc[..., 0] - 0.5], -1)  # noqa: E731
+    blocked = np.argwhere(np.asarray(bank.obstacles[layout]))
+    cells = to_xy(blocked) - 0.5
+    return common | {
+        "xy": to_xy(states.pos).astype(np.float32),
+        "heading": np.zeros(steps + 1, np.float32),
+        "lasers": np.zeros((steps + 1, 0), np.float32),
+        "laser_angles": np.zeros(0, np.float32),
+        "goal": to_xy(states.goal[0]).astype(np.float32),
+        "walls": np.concatenate([cells, np.ones_like(cells)], axis=1).astype(np.float32),
+        "arena": np.array([size, size], np.float32),
+        "goal_radius": np.float32(0.4),
+        "radius": np.float32(0.3),
+    }
+
+
+def describe(ep: Episode) -> str:
+    outcome = OUTCOMES[int(ep["outcome"])]
+    text = f"{outcome} after {int(ep['steps'])} steps, return {float(ep['return']):.1f}"
+    if int(ep["shortest_path"]) > 0:
+        text += f" (shortest {int(ep['shortest_path'])})"
+    return text
+
+
+# ------------------------------------------------------------------------------- drawing
+def draw_episode(
+    ax: Any,
+    ep: Episode,
+    upto: int | None = None,
+    laser_steps: Sequence[int] | None = None,
+    title: str | None = None,
+) -> None:
+    """Top-down view: walls, start (green), goal (red), the path up to step ``upto`` (default:
+    the end), the robot there, and its laser rays at ``laser_steps`` (default: the current
+    step while animating, 4 steps spread over the episode otherwise)."""
+    from matplotlib.patches import Circle, Rectangle
+
+    steps = int(ep["steps"])
+    t = steps if upto is None else min(upto, steps)
+    if laser_steps is None:
+        laser_steps = [t] if upto is not None else np.linspace(0, steps, 4).round().astype(int)
+    width, height = (float(v) for v in ep["arena"])
+    ax.clear()
+    ax.set_xlim(0, width)
+    ax.set_ylim(0, height)
+    ax.set_aspect("equal")
+    ax.set_xticks([])
+    ax.set_yticks([])
+    ax.add_patch(Rectangle((0, 0), width, height, fill=False, lw=2, color="black"))
+    if not ep["laser_angles"].size:  # grid: show the cells
+        ax.set_xticks(np.arange(width + 1), minor=True)
+        ax.set_yticks(np.arange(height + 1), minor=True)
+        ax.grid(which="minor", color="0.85", lw=0.5)
+        ax.tick_params(which="minor", length=0)
+    for x, y, w, h in ep["walls"]:
+        ax.add_patch(Rectangle((x, y), w, h, color="0.35", lw=0))
+    radius = float(ep["radius"])
+    xy, heading = ep["xy"], ep["heading"]
+    for s in laser_steps:  # rays from the robot's centre at each chosen step
+        for angle, dist in zip(ep["laser_angles"], ep["lasers"][s], strict=True):
+            a = heading[s] + angle
+            end = xy[s] + dist * np.array([np.cos(a), np.sin(a)])
+            ax.plot([xy[s, 0], end[0]], [xy[s, 1], end[1]], color="orange", lw=0.8, zorder=2)
+    goal_r = float(ep["goal_radius"])
+    ax.add_patch(Circle(ep["goal"], goal_r, color="tab:red", alpha=0.25, lw=0))
+    ax.plot(*ep["goal"], marker="*", color="tab:red", ms=12, zorder=4, label="goal")
+    ax.plot(*xy[0], marker="o", color="tab:green", ms=8, zorder=4, label="start")
+    ax.plot(xy[: t + 1, 0], xy[: t + 1, 1], color="tab:blue", lw=1.5, zorder=3, label="path")
+    ax.add_patch(Circle(xy[t], radius, color="tab:blue", zorder=5))
+    if ep["laser_angles"].size:  # heading tick
+        tip = xy[t] + 2 * radius * np.array([np.cos(heading[t]), np.sin(heading[t])])
+        ax.plot([xy[t, 0], tip[0]], [xy[t, 1], tip[1]], color="black", lw=1.5, zorder=6)
+    ax.set_title(title if title is not None else describe(ep), fontsize=9)
+
+
+def _grid_shape(n: int) -> tuple[int, int]:
+    cols = min(n, 4) if n != 4 else 2
+    return math.ceil(n / cols), cols
+
+
+def trajectories_figure(episodes: Sequence[Episode], title: str = "") -> Any:
+    """Static figure: each episode's whole path with laser fans at 4 steps."""
+    import matplotlib.pyplot as plt
+
+    rows, cols = _grid_shape(len(episodes))
+    fig, axes = plt.subplots(rows, cols, figsize=(3.6 * cols, 3.8 * rows), squeeze=False)
+    for ax, ep in zip(axes.ravel(), episodes, strict=False):
+        draw_episode(ax, ep)
+    for ax in axes.ravel()[len(episodes) :]:
+        ax.axis("off")
+    axes[0, 0].legend(loc="upper left", fontsize=7, framealpha=0.9)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    return fig
+
+
+def save_gif(
+    episodes: Sequence[Episode], path: Path, fps: int = 10, title: str = "", max_frames: int = 300
+) -> int:
+    """Animate the episodes side by side, one frame per step (every k-th step past
+    ``max_frames``); written atomically. Returns the number of frames."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.animation import FuncAnimation, PillowWriter
+
+    longest = max(int(ep["steps"]) for ep in episodes)
+    stride = max(1, math.ceil((longest + 1) / max_frames))
+    frames = list(range(0, longest + 1, stride))
+    if frames[-1] != longest:
+        frames.append(longest)
+    rows, cols = _grid_shape(len(episodes))
+    fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols, 3.4 * rows), squeeze=False)
+    for ax in axes.ravel()[len(episodes) :]:
+        ax.axis("off")
+
+    def update(t):
+        for ax, ep in zip(axes.ravel(), episodes, strict=False):
+            end = min(t, int(ep["steps"]))
+            status = describe(ep) if end == int(ep["steps"]) else f"step {end}"
+            draw_episode(ax, ep, upto=t, title=status)
+        if title:
+            fig.suptitle(title, fontsize=10)
+
+    tmp = path.with_name(f".{path.stem}.partial{path.suffix}")
+    FuncAnimation(fig, update, frames=frames).save(tmp, writer=PillowWriter(fps=fps))
+    plt.close(fig)
+    os.replace(tmp, path)
+    return len(frames)
+
+
+# ---------------------------------------------------------------------------- command line
+def parser() -> argparse.ArgumentParser:
+    p = _Parser(
+        prog="python -m jaxnav.render",
+        description="Draw episodes of a trained run: an animated GIF or a PNG of the paths.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    p.add_argument("run", type=Path, help="run directory written by jaxnav.train")
+    p.add_argument("--episodes", type=int, default=4, help="episodes drawn side by side (1-16)")
+    p.add_argument("--out", type=Path, default=Path("traj.gif"), help=".gif or .png")
+    p.add_argument("--seed", type=int, default=0, help="seed of the episodes' starts and goals")
+    p.add_argument("--run-seed", type=int, help="which trained seed (default: the run's first)")
+    p.add_argument("--policy", choices=("trained", "random"), default="trained")
+    p.add_argument("--env", help="draw on another env id; default: the run's")
+    _add_env_args(p)
+    p.add_argument("--fps", type=int, default=10)
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    from jaxnav.train import Trainer
+
+    prog = "jaxnav.render"
+    try:
+        args = parser().parse_args(argv)
+        if not 1 <= args.episodes <= 16:
+            raise UsageError(f"--episodes {args.episodes}: must be in [1, 16]")
+        if args.out.suffix not in (".gif", ".png"):
+            raise UsageError(f"--out {args.out}: must end in .gif or .png")
+        if not args.out.parent.is_dir():
+            raise UsageError(f"--out {args.out}: directory {args.out.parent} does not exist")
+        if args.seed < 0 or not 1 <= args.fps <= 100:
+            bad = f"--seed {args.seed}" if args.seed < 0 else f"--fps {args.fps}"
+            raise UsageError(f"{bad}: out of range")
+        config = run_dir.load_config(args.run)
+        seeds = run_dir.seeds_of(config)
+        run_seed = seeds[0] if args.run_seed is None else args.run_seed
+        if run_seed not in seeds:
+            raise UsageError(f"--run-seed {run_seed}: the run has seeds {seeds}")
+        trainer = Trainer(config)
+        params = run_dir.load_trained_params(args.run, trainer)
+        if args.env is not None or args.env_arg:
+            kwargs = {**(config.env_kwargs if args.env is None else {}), **dict(args.env_arg)}
+            env_trainer = Trainer(
+                dataclasses.replace(config, env=args.env or config.env, env_kwargs=kwargs)
+            )
+            if env_trainer.obs_size != trainer.obs_size:
+                raise UsageError(
+                    f"--env {env_trainer.config.env}: observations of size "
+                    f"{env_trainer.obs_size} do not fit the run's network ({trainer.obs_size})"
+                )
+        else:
+            env_trainer = trainer
+    except (UsageError, ValueError, FileNotFoundError) as e:
+        return _fail(prog, str(e))
+    enable_compilation_cache()
+    env, env_params = env_trainer.env, env_trainer.env_params
+    if args.policy == "random":
+        policy = random_policy(env.num_actions)
+    else:
+        policy = trainer.greedy_policy(jax.tree.map(lambda x: x[seeds.index(run_seed)], params))
+    keys = jax.random.split(jax.random.key(args.seed), args.episodes)
+    obs, state = jax.vmap(env.reset, in_axes=(0, None))(keys, env_params)
+    episodes = record(env, env_params, policy, obs, state)
+    title = f"{env.name}: {args.policy} policy (seed {run_seed})"
+    if args.out.suffix == ".gif":
+        frames = save_gif(episodes, args.out, fps=args.fps, title=title)
+        print(f"wrote {args.out} ({frames} frames)")
+    else:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        fig = trajectories_figure(episodes, title)
+        tmp = args.out.with_name(f".{args.out.stem}.partial.png")
+        fig.savefig(tmp, dpi=110)
+        os.replace(tmp, args.out)
+        print(f"wrote {args.out}")
+    for i, ep in enumerate(episodes):
+        print(f"  episode {i}: {describe(ep)}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
