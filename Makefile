@@ -20,7 +20,7 @@ train: $(STAMP)
 
 test: $(STAMP)
 	$(BIN)/python -m ruff check jaxnav tests benchmarks
-	$(BIN)/python -m pytest -n 2 $(ARGS)
+	$(BIN)/python -m pytest -n 2 --dist loadgroup $(ARGS)
 
 lint: $(STAMP)
 	$(BIN)/python -m ruff check jaxnav tests benchmarks
