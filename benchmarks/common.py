@@ -25,11 +25,11 @@ def machine_info() -> dict[str, Any]:
         "devices": [str(d) for d in jax.devices()],
         "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
         "loadavg_1m_at_start": os.getloadavg()[0] if hasattr(os, "getloadavg") else None,
-        "gymnax_version": _version("gymnax"),
+        "gymnax_version": package_version("gymnax"),
     }
 
 
-def _version(dist: str) -> str | None:
+def package_version(dist: str) -> str | None:
     try:
         return importlib.metadata.version(dist)
     except importlib.metadata.PackageNotFoundError:
@@ -43,18 +43,41 @@ def write_results(out: Path, result: dict[str, Any], markdown: str) -> None:
     out.with_suffix(".md").write_text(markdown + "\n")
 
 
-def compile_timed(fn: Callable[..., Any], *args: Any) -> tuple[Callable[[], float], float]:
-    """Compile ``jit(fn)`` for ``args``; return (a function timing one call in seconds, the
+class TimedProgram:
+    """A compiled program. Calling it runs it once, on the arguments it was compiled for or on
+    others of the same shapes, and returns the seconds it took."""
+
+    def __init__(self, compiled: jax.stages.Compiled, args: tuple[Any, ...]) -> None:
+        self.compiled, self.args = compiled, args
+
+    def __call__(self, *args: Any) -> float:
+        t0 = time.perf_counter()
+        jax.block_until_ready(self.compiled(*(args or self.args)))
+        return time.perf_counter() - t0
+
+    @property
+    def peak_bytes(self) -> int | None:
+        """XLA's peak memory of the program (arguments, outputs and temporaries), or None
+        where the backend does not report it."""
+        stats = self.compiled.memory_analysis()
+        if stats is None:
+            return None
+        peak = getattr(stats, "peak_memory_in_bytes", 0)
+        return int(peak) or int(
+            stats.argument_size_in_bytes
+            + stats.output_size_in_bytes
+            + stats.temp_size_in_bytes
+            - stats.alias_size_in_bytes
+        )
+
+
+def compile_timed(fn: Callable[..., Any], *args: Any) -> tuple[TimedProgram, float]:
+    """Compile ``jit(fn)`` for ``args``; return (the program, timing one call per call, the
     compile time). One warm-up call is made, so the first timed call is a steady-state one."""
     t0 = time.perf_counter()
     compiled = jax.jit(fn).lower(*args).compile()
     compile_s = time.perf_counter() - t0
-
-    def run() -> float:
-        t0 = time.perf_counter()
-        jax.block_until_ready(compiled(*args))
-        return time.perf_counter() - t0
-
+    run = TimedProgram(compiled, args)
     run()
     return run, compile_s
 

@@ -1,19 +1,27 @@
 """Environment throughput: env steps/s of ``jax.lax.scan`` over ``vmap(env.step)``.
 
     python -m benchmarks.env_throughput [--num-envs 1,16,256,4096,16384] [--steps N]
-        [--out benchmarks/results/env_throughput.json] [--envs NAME,NAME,...]
+        [--target-s S] [--out benchmarks/results/env_throughput.json] [--envs NAME,NAME,...]
 
-Each (env, num_envs) row jits one function that scans ``--steps`` steps of the vmapped step
-with uniformly random actions (per-step action and key sampling included in the timing).
-The scan carries the observation and sums the reward, so XLA cannot drop the observation
-computation. "compile s" is trace + lower + XLA compile (``jit(f).lower(...).compile()``);
-steps/s uses the median of ``--rounds`` runs after a warm-up; the rows of one num_envs are
-timed in turn, round by round, so load changes hit them alike and ratios stay meaningful.
+Each (env, num_envs) row jits one function that loops a given number of steps of the vmapped
+step with uniformly random actions (per-step action and key sampling included in the timing);
+the step count is an argument, so one compiled program serves every count. The loop carries
+the observation and sums the reward, so XLA cannot drop the observation computation.
+"compile s" is trace + lower + XLA compile (``jit(f).lower(...).compile()``). Steps per timed
+run: ``--steps``, or fewer when one step takes long enough that ``--target-s`` seconds are
+reached sooner (timed once after the warm-up), so slow rows at large num_envs stay short.
+steps/s uses the median of ``--rounds`` runs; the rows of one num_envs are timed in turn,
+round by round, so load changes hit them alike and ratios stay meaningful. "peak bytes" is
+XLA's peak memory of the compiled loop (``Compiled.memory_analysis``).
 
-Rows: ``GridMaze-v0``, ``GridMaze-Random-v0`` (auto-reset ``env.step``), ``GridMaze-v0
-step_env only`` (no time limit, no auto-reset: the cost of auto-reset is its ratio to
-GridMaze-v0) and, when ``import gymnax`` works, gymnax's ``FourRooms-misc`` and
-``MetaMaze-misc`` through gymnax's own ``make`` and auto-resetting ``step`` (5-tuple).
+Rows (``ROWS``): ``GridMaze-v0``, ``GridMaze-Random-v0`` (auto-reset ``env.step``),
+``GridMaze-v0 step_env only`` (no time limit, no auto-reset: the cost of auto-reset is its
+ratio to GridMaze-v0), the robot ``RobotRandom-v0 mjx`` / ``RobotRandom-v0 kinematic`` (a
+random maze per episode, one backend each; ``RobotSimple-v0 ...`` too) and the peers, each
+through its own ``make`` and auto-resetting ``step``: gymnax's ``FourRooms-misc`` and
+``MetaMaze-misc`` (5-tuple), ``navix FourRooms`` (``Navix-FourRooms-v0``, a random layout per
+reset) and ``jaxmarl JaxNav`` (jaxmarl's JaxNav with one agent, its 15 discrete actions and its
+default 200-beam lidar and random maps). Peers that do not import are skipped with a note.
 The ratio column compares with gymnax FourRooms-misc at the same num_envs when it was
 measured in the same run, otherwise with GridMaze-v0.
 """
@@ -30,6 +38,7 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 import jaxnav
 from benchmarks.common import compile_timed, machine_info, time_in_turn, write_results
@@ -40,13 +49,51 @@ ResetFn = Callable[[jax.Array], tuple[jax.Array, Any]]
 
 STEP_ENV_ONLY = "GridMaze-v0 step_env only"
 OUR_ENVS = ("GridMaze-v0", "GridMaze-Random-v0", STEP_ENV_ONLY)
+ROBOT_ENVS = tuple(
+    f"{env} {backend}"
+    for env in ("RobotRandom-v0", "RobotSimple-v0")
+    for backend in ("mjx", "kinematic")
+)
 GYMNAX_ENVS = ("FourRooms-misc", "MetaMaze-misc")
-ALL_ENVS = OUR_ENVS + GYMNAX_ENVS
+NAVIX = "navix FourRooms"
+JAXMARL = "jaxmarl JaxNav"
+PEER_ENVS = GYMNAX_ENVS + (NAVIX, JAXMARL)
+ALL_ENVS = OUR_ENVS + ROBOT_ENVS + PEER_ENVS
+DEFAULT_ENVS = OUR_ENVS + GYMNAX_ENVS
 DEFAULT_OUT = Path("benchmarks/results/env_throughput.json")
 
 
 def build(name: str) -> tuple[ResetFn, StepFn, int]:
-    """``(reset, step, num_actions)`` for one row name; gymnax rows import gymnax here."""
+    """``(reset, step, num_actions)`` for one row name; peer rows import their library here."""
+    if name == NAVIX:
+        import navix  # bench extra
+
+        nenv = navix.make("Navix-FourRooms-v0")
+
+        def nstep(key: jax.Array, timestep: Any, action: jax.Array) -> Any:
+            timestep = nenv.step(timestep, action)  # navix keeps its own key in the state
+            return timestep.observation, timestep, timestep.reward
+
+        def nreset(key: jax.Array) -> tuple[jax.Array, Any]:
+            timestep = nenv.reset(key)
+            return timestep.observation, timestep
+
+        return nreset, nstep, len(nenv.action_set)
+    if name == JAXMARL:
+        from jaxmarl.environments.jaxnav import JaxNav  # bench extra
+
+        menv = JaxNav(num_agents=1, act_type="Discrete")
+        (agent,) = menv.agents
+
+        def mstep(key: jax.Array, state: Any, action: jax.Array) -> Any:
+            obs, state, reward, _dones, _info = menv.step(key, state, {agent: action})
+            return obs[agent], state, reward[agent]
+
+        def mreset(key: jax.Array) -> tuple[jax.Array, Any]:
+            obs, state = menv.reset(key)
+            return obs[agent], state
+
+        return mreset, mstep, menv.agent_action_space().n
     if name in GYMNAX_ENVS:
         import gymnax  # bench extra; may be absent
 
@@ -57,7 +104,11 @@ def build(name: str) -> tuple[ResetFn, StepFn, int]:
             return obs, state, reward
 
         return (lambda k: genv.reset(k, gparams)), gstep, genv.num_actions
-    env, params = jaxnav.make("GridMaze-v0" if name == STEP_ENV_ONLY else name)
+    if name in ROBOT_ENVS:
+        env_id, backend = name.split(" ")
+        env, params = jaxnav.make(env_id, backend=backend)
+    else:
+        env, params = jaxnav.make("GridMaze-v0" if name == STEP_ENV_ONLY else name)
     if name == STEP_ENV_ONLY:
 
         def step(key: jax.Array, state: Any, action: jax.Array) -> Any:
@@ -74,38 +125,54 @@ def build(name: str) -> tuple[ResetFn, StepFn, int]:
     return (lambda k: env.reset(k, params)), step, env.num_actions
 
 
-def prepare(name: str, num_envs: int, steps: int, seed: int = 0) -> dict[str, Any]:
-    """Compile one row's rollout; returns a record with ``run()`` that times one execution."""
+def prepare(
+    name: str, num_envs: int, steps: int, target_s: float | None = None, seed: int = 0
+) -> dict[str, Any]:
+    """Compile one row's rollout; returns a record with ``run()`` that times one execution of
+    ``steps`` steps, or fewer if one step takes so long that ``target_s`` is reached sooner."""
     reset, step, num_actions = build(name)
     vstep = jax.vmap(step)
 
-    def rollout(key: jax.Array, obs: jax.Array, state: Any) -> tuple[jax.Array, Any, jax.Array]:
-        def body(carry: Any, key: jax.Array) -> tuple[Any, None]:
+    def rollout(
+        key: jax.Array, obs: jax.Array, state: Any, steps: jax.Array
+    ) -> tuple[jax.Array, Any, jax.Array]:
+        def body(i: jax.Array, carry: Any) -> Any:
             obs, state, total = carry
-            k_act, k_step = jax.random.split(key)
+            k_act, k_step = jax.random.split(jax.random.fold_in(key, i))
             # one 32-bit word per action: randint draws two, doubling the harness cost
             actions = (jax.random.bits(k_act, (num_envs,)) % num_actions).astype(jnp.int32)
             obs, state, reward = vstep(jax.random.split(k_step, num_envs), state, actions)
-            return (obs, state, total + reward.astype(jnp.float32).sum()), None
+            return obs, state, total + reward.astype(jnp.float32).sum()
 
-        init = (obs, state, jnp.zeros((), jnp.float32))
-        return jax.lax.scan(body, init, jax.random.split(key, steps))[0]
+        return jax.lax.fori_loop(0, steps, body, (obs, state, jnp.zeros((), jnp.float32)))
 
     k_reset, k_run = jax.random.split(jax.random.key(seed))
     obs, state = jax.block_until_ready(
         jax.jit(jax.vmap(reset))(jax.random.split(k_reset, num_envs))
     )
-    run, compile_s = compile_timed(rollout, k_run, obs, state)
-    return {"env": name, "num_envs": num_envs, "steps": steps, "compile_s": compile_s, "run": run}
+    program, compile_s = compile_timed(rollout, k_run, obs, state, jnp.int32(1))
+    if target_s is not None:  # one step, warm: how many fit in target_s
+        steps = int(np.clip(target_s / program(), 1, steps))
+    n = jnp.int32(steps)
+    return {
+        "env": name,
+        "num_envs": num_envs,
+        "steps": steps,
+        "compile_s": compile_s,
+        "peak_bytes": program.peak_bytes,
+        "run": lambda: program(k_run, obs, state, n),
+    }
 
 
-def measure_interleaved(names: list[str], num_envs: int, steps: int, rounds: int) -> list[dict]:
+def measure_interleaved(
+    names: list[str], num_envs: int, steps: int, rounds: int, target_s: float | None = None
+) -> list[dict]:
     """Time every row ``rounds`` times in turn (row A, B, C, A, B, C, ...), so that a change of
     machine load hits all rows alike and the ratios stay meaningful; median per row."""
-    rows = [prepare(name, num_envs, steps) for name in names]
+    rows = [prepare(name, num_envs, steps, target_s) for name in names]
     time_in_turn(rows, rounds)
     for row in rows:
-        row["steps_per_s"] = num_envs * steps / statistics.median(row["run_s"])
+        row["steps_per_s"] = num_envs * row["steps"] / statistics.median(row["run_s"])
     return rows
 
 
@@ -152,10 +219,11 @@ def table(rows: list[dict[str, Any]]) -> str:
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--num-envs", default="1,16,256,4096,16384", help="comma-separated")
-    p.add_argument("--steps", type=int, default=200, help="scan length per row")
+    p.add_argument("--steps", type=int, default=200, help="steps per timed run (at most)")
+    p.add_argument("--target-s", type=float, help="fewer steps if a run would take longer")
     p.add_argument("--rounds", type=int, default=5, help="interleaved timed runs per row")
     p.add_argument("--out", type=Path, default=DEFAULT_OUT, help="JSON output path")
-    p.add_argument("--envs", default=",".join(ALL_ENVS), help=f"comma-separated of {ALL_ENVS}")
+    p.add_argument("--envs", default=",".join(DEFAULT_ENVS), help=f"comma-separated of {ALL_ENVS}")
     args = p.parse_args(argv)
     args.num_envs = [int(n) for n in args.num_envs.split(",")]
     args.envs = [e.strip() for e in args.envs.split(",") if e.strip()]
@@ -165,29 +233,29 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     return args
 
 
+def usable(names: list[str]) -> tuple[list[str], dict[str, str]]:
+    """The rows whose library imports and traces on this jax, and why the others do not."""
+    ok, skipped = [], {}
+    for name in names:
+        try:
+            reset, step, _ = build(name)
+            obs, state = jax.eval_shape(reset, jax.random.key(0))
+            jax.eval_shape(step, jax.random.key(1), state, jnp.int32(0))
+            ok.append(name)
+        except Exception as e:  # a peer missing, or one that breaks on this jax
+            print(f"note: {name} skipped ({type(e).__name__}: {e})", file=sys.stderr)
+            skipped[name] = f"{type(e).__name__}: {e}"
+    return ok, skipped
+
+
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Run the benchmark, print the table, write the JSON (and a .md table next to it)."""
     args = parse_args(argv)
     info = machine_info()
-    envs, skipped = list(args.envs), {}
-    gymnax_wanted = [e for e in envs if e in GYMNAX_ENVS]
-    if gymnax_wanted:
-        try:
-            import gymnax  # noqa: F401
-        except ImportError as e:
-            print(f"note: gymnax not importable ({e}); skipping {', '.join(gymnax_wanted)}")
-            skipped = {g: f"import gymnax failed: {e}" for g in gymnax_wanted}
-            envs = [e for e in envs if e not in GYMNAX_ENVS]
-    for name in [e for e in envs if e in GYMNAX_ENVS]:
-        try:  # a gymnax that imports but breaks on this jax
-            prepare(name, 1, 2)
-        except Exception as e:
-            print(f"note: {name} failed ({type(e).__name__}: {e}); skipping it")
-            skipped[name] = f"{type(e).__name__}: {e}"
-    envs = [e for e in envs if e not in skipped]
+    envs, skipped = usable(args.envs)
     rows = []
     for n in args.num_envs:
-        for row in measure_interleaved(envs, n, args.steps, args.rounds):
+        for row in measure_interleaved(envs, n, args.steps, args.rounds, args.target_s):
             print(
                 f"{row['env']:28s} {n:6d} envs: compile {row['compile_s']:6.2f} s, "
                 f"{row['steps_per_s']:14,.0f} steps/s",

@@ -17,7 +17,6 @@ or resets.
 from __future__ import annotations
 
 import argparse
-import importlib.metadata
 import statistics
 import sys
 from pathlib import Path
@@ -27,7 +26,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from benchmarks.common import compile_timed, machine_info, time_in_turn, write_results
+from benchmarks.common import (
+    compile_timed,
+    machine_info,
+    package_version,
+    time_in_turn,
+    write_results,
+)
 from jaxnav.envs.robot import mazes
 from jaxnav.envs.robot.mjx_backend import MjxRobot
 
@@ -95,7 +100,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     print(markdown)
     result = {
         "benchmark": "robot_mjx",
-        "machine": {**machine_info(), "mujoco_mjx": _version("mujoco-mjx")},
+        "machine": {**machine_info(), "mujoco_mjx": package_version("mujoco-mjx")},
         "config": {
             **vars(args),
             "out": str(args.out),
@@ -109,13 +114,6 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     write_results(args.out, result, markdown)
     print(f"wrote {args.out}", file=sys.stderr)
     return result
-
-
-def _version(dist: str) -> str | None:
-    try:
-        return importlib.metadata.version(dist)
-    except importlib.metadata.PackageNotFoundError:
-        return None
 
 
 if __name__ == "__main__":

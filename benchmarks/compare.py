@@ -1,0 +1,255 @@
+"""jaxnav against its peers in one run: env throughput, DQN training time, CLI start-up time.
+
+    python -m benchmarks.compare [--num-envs 1,16,256,4096,16384] [--envs NAME,...]
+        [--steps 200] [--target-s 0.5] [--rounds 3] [--train-config JSON]
+        [--eval-episodes 256] [--threshold 0.95] [--sections env,train,compile]
+        [--out benchmarks/results/compare.json]
+
+Sections (each can be left out with ``--sections``):
+
+- ``env``: env steps/s of random actions for our envs and the peers', each through its own
+  ``make`` and auto-resetting ``step``, jit + vmap + a loop of steps, rows of one num_envs timed
+  in turn (``benchmarks.env_throughput``: compile time apart, XLA's peak memory per program).
+  Ratios pair each of ours with the peer it is measured against: GridMaze-v0 / gymnax
+  FourRooms-misc, GridMaze-Random-v0 / navix FourRooms (both draw a new layout per episode),
+  and the robot (MJX and kinematic backends, a random maze per episode) / jaxmarl's JaxNav
+  with one agent. A PNG plots steps/s against num_envs.
+- ``train``: our DQN against rejax's on GridMaze-v0 with the same network, batch, replay ratio
+  and steps (``benchmarks.train_vs_rejax``): wall time, the ratio, time to a greedy success
+  threshold, compile time apart.
+- ``compile``: every CLI entry point started twice, with an empty and then a filled persistent
+  compilation cache (``benchmarks.compile_time``).
+
+Writes the JSON, a markdown copy of the tables (same name, ``.md``) and the plot (``.png``).
+Nothing here assumes a CPU: on a GPU pass larger sizes, e.g. ``--num-envs
+1024,16384,262144``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import resource
+import sys
+from pathlib import Path
+from typing import Any
+
+import jax
+
+from benchmarks import compile_time, env_throughput, train_vs_rejax
+from benchmarks.common import machine_info, package_version, write_results
+from jaxnav.config import TrainConfig
+
+DEFAULT_OUT = Path("benchmarks/results/compare.json")
+SECTIONS = ("env", "train", "compile")
+NAVIX, JAXMARL = env_throughput.NAVIX, env_throughput.JAXMARL
+DEFAULT_ENVS = (
+    "GridMaze-v0",
+    "GridMaze-Random-v0",
+    "RobotRandom-v0 mjx",
+    "RobotRandom-v0 kinematic",
+    *env_throughput.PEER_ENVS,
+)
+# ours -> (peer, the issue's target ratio on one GPU, measured in the same run)
+PAIRS = {
+    "GridMaze-v0": ("FourRooms-misc", 1.0),
+    "GridMaze-Random-v0": (NAVIX, 10.0),
+    "RobotRandom-v0 mjx": (JAXMARL, 4.0),
+    "RobotRandom-v0 kinematic": (JAXMARL, 300.0),
+    "RobotSimple-v0 mjx": (JAXMARL, 4.0),
+    "RobotSimple-v0 kinematic": (JAXMARL, 300.0),
+}
+
+
+def env_section(args: argparse.Namespace) -> dict[str, Any]:
+    envs, skipped = env_throughput.usable(args.envs)
+    rows = []
+    for n in args.num_envs:
+        for row in env_throughput.measure_interleaved(
+            envs, n, args.steps, args.rounds, args.target_s
+        ):
+            print(
+                f"{row['env']:26s} {n:7d} envs: compile {row['compile_s']:6.2f} s, "
+                f"{row['steps_per_s']:15,.0f} steps/s",
+                file=sys.stderr,
+            )
+            rows.append(row)
+    return {"skipped": skipped, "rows": rows, "ratios": ratios(rows)}
+
+
+def ratios(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Ours / paired peer at every num_envs where both were measured."""
+    sps = {(r["env"], r["num_envs"]): r["steps_per_s"] for r in rows}
+    out = []
+    for (env, n), ours in sps.items():
+        if env in PAIRS and (PAIRS[env][0], n) in sps:
+            peer, target = PAIRS[env]
+            out.append(
+                {
+                    "ours": env,
+                    "peer": peer,
+                    "num_envs": n,
+                    "ratio": ours / sps[(peer, n)],
+                    "gpu_target": target,
+                }
+            )
+    return out
+
+
+def env_tables(section: dict[str, Any]) -> str:
+    rows = section["rows"]
+    sizes = sorted({r["num_envs"] for r in rows})
+    envs = list(dict.fromkeys(r["env"] for r in rows))
+    by = {(r["env"], r["num_envs"]): r for r in rows}
+    head = "| env | " + " | ".join(f"{n} envs" for n in sizes)
+    lines = [
+        head + " | compile s | peak MB (largest) |",
+        "|---|" + "---:|" * (len(sizes) + 2),
+    ]
+    for env in envs:
+        cells = [by.get((env, n)) for n in sizes]
+        sps = " | ".join("-" if c is None else f"{c['steps_per_s']:,.0f}" for c in cells)
+        compiles = [c["compile_s"] for c in cells if c is not None]
+        peak = [c for c in cells if c is not None][-1]["peak_bytes"]
+        mb = "-" if peak is None else f"{peak / 2**20:,.1f}"
+        lines.append(f"| {env} | {sps} | {min(compiles):.1f}-{max(compiles):.1f} | {mb} |")
+    pairs = list(dict.fromkeys((r["ours"], r["peer"]) for r in section["ratios"]))
+    if pairs:
+        by_ratio = {(r["ours"], r["num_envs"]): r for r in section["ratios"]}
+        lines += [
+            "",
+            "| ours / peer (steps/s) | "
+            + " | ".join(f"{n} envs" for n in sizes)
+            + " | target on one GPU |",
+            "|---|" + "---:|" * (len(sizes) + 1),
+        ]
+        for ours, peer in pairs:
+            cells = [by_ratio.get((ours, n)) for n in sizes]
+            text = " | ".join("-" if c is None else f"{c['ratio']:.2f}" for c in cells)
+            lines.append(f"| {ours} / {peer} | {text} | >= {PAIRS[ours][1]:g} |")
+    if section["skipped"]:
+        lines += ["", "Skipped: " + "; ".join(f"{k} ({v})" for k, v in section["skipped"].items())]
+    return "\n".join(lines)
+
+
+def plot(rows: list[dict[str, Any]], out: Path, title: str) -> None:
+    """steps/s against num_envs, log-log, one line per env (ours solid, peers dashed)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(8, 5))
+    for env in dict.fromkeys(r["env"] for r in rows):
+        pts = sorted((r["num_envs"], r["steps_per_s"]) for r in rows if r["env"] == env)
+        peer = env in env_throughput.PEER_ENVS
+        label = f"{env} (peer)" if peer else env
+        xs, ys = zip(*pts, strict=True)
+        ax.plot(xs, ys, marker="o", linestyle="--" if peer else "-", label=label)
+    ax.set(xscale="log", yscale="log", xlabel="parallel envs", ylabel="env steps / s")
+    ax.set_title(title, fontsize=9)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out, dpi=120)
+    plt.close(fig)
+
+
+def train_config(overrides: str) -> TrainConfig:
+    """The CLI's default (the paper's grid experiment) with ``overrides``, a JSON object of
+    ``TrainConfig`` fields."""
+    values = json.loads(overrides)
+    if "hidden_sizes" in values:
+        values["hidden_sizes"] = tuple(values["hidden_sizes"])
+    config = dataclasses.replace(TrainConfig(), **values)
+    config.validate()
+    return config
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--num-envs", default="1,16,256,4096,16384", help="comma-separated")
+    p.add_argument(
+        "--envs",
+        default=",".join(DEFAULT_ENVS),
+        help=f"comma-separated of {env_throughput.ALL_ENVS}",
+    )
+    p.add_argument("--steps", type=int, default=200, help="env steps per timed run, at most")
+    p.add_argument("--target-s", type=float, default=0.5, help="seconds per timed run, about")
+    p.add_argument("--rounds", type=int, default=3, help="timed runs per row, interleaved")
+    p.add_argument(
+        "--train-config",
+        default="{}",
+        help="JSON TrainConfig overrides, e.g. '{\"total_timesteps\": 80000}'",
+    )
+    p.add_argument("--eval-episodes", type=int, default=256, help="greedy episodes per check")
+    p.add_argument("--threshold", type=float, default=0.95, help="greedy success to reach")
+    p.add_argument("--compile-timesteps", type=int, default=16_000, help="steps per CLI run")
+    p.add_argument("--sections", default=",".join(SECTIONS), help=f"comma-separated {SECTIONS}")
+    p.add_argument("--out", type=Path, default=DEFAULT_OUT, help="JSON output path")
+    args = p.parse_args(argv)
+    try:
+        args.num_envs = [int(n) for n in args.num_envs.split(",") if n.strip()]
+    except ValueError:
+        p.error(f"--num-envs {args.num_envs!r}: comma-separated integers")
+    args.envs = [e.strip() for e in args.envs.split(",") if e.strip()]
+    args.sections = [s.strip() for s in args.sections.split(",") if s.strip()]
+    bad = [e for e in args.envs if e not in env_throughput.ALL_ENVS]
+    bad += [s for s in args.sections if s not in SECTIONS]
+    if bad:
+        p.error(f"unknown envs or sections: {', '.join(bad)}")
+    if not args.num_envs or min(args.num_envs) < 1 or min(args.steps, args.rounds) < 1:
+        p.error("--num-envs, --steps and --rounds must be >= 1")
+    if args.eval_episodes < 1 or not 0 < args.threshold <= 1:
+        p.error("--eval-episodes must be >= 1, --threshold in (0, 1]")
+    try:
+        args.train_config = train_config(args.train_config)
+    except (ValueError, TypeError) as e:  # bad JSON, unknown field, invalid value
+        p.error(f"--train-config {args.train_config!r}: {e}")
+    return args
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    """Run the chosen sections, print the tables, write JSON, markdown and the plot."""
+    args = parse_args(argv)
+    info = machine_info() | {
+        "versions": {
+            d: package_version(d) for d in ("navix", "jaxmarl", "rejax", "mujoco-mjx", "flax")
+        }
+    }
+    command = " ".join(["python -m benchmarks.compare", *(sys.argv[1:] if argv is None else argv)])
+    result: dict[str, Any] = {"machine": info, "command": command}
+    parts = []
+    if "env" in args.sections:
+        result["env"] = env_section(args)
+        parts.append("### Env steps/s\n\n" + env_tables(result["env"]))
+    if "train" in args.sections:
+        config = args.train_config
+        result["train"] = train_vs_rejax.measure(config, args.eval_episodes, args.threshold)
+        result["train"]["config"] = dataclasses.asdict(config)
+        parts.append(
+            f"### DQN training, GridMaze-v0, {config.total_timesteps:,} env steps\n\n"
+            + train_vs_rejax.table(result["train"])
+        )
+    if "compile" in args.sections:
+        entries = list(compile_time.ENTRIES)
+        result["compile"] = compile_time.measure(entries, args.compile_timesteps)
+        parts.append("### CLI start-up\n\n" + compile_time.table(result["compile"]))
+    info["loadavg_1m_at_end"] = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
+    info["max_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    info["device_memory"] = [
+        d.memory_stats() for d in jax.local_devices() if d.memory_stats() is not None
+    ]
+    md = "\n\n".join(parts)
+    print(md)
+    write_results(args.out, result, md)
+    if "env" in result:
+        title = f"{info['backend']} ({info['cpu_count']} cores), {info['date'][:10]}"
+        plot(result["env"]["rows"], args.out.with_suffix(".png"), title)
+    return result
+
+
+if __name__ == "__main__":
+    main()

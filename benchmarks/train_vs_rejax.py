@@ -1,0 +1,202 @@
+"""Our DQN against rejax's DQN on the same env, network, batch, replay ratio and step count.
+
+Both train on our ``GridMaze-v0`` (rejax through ``jaxnav.wrappers.GymnaxV0``, the gymnax 0.0.x
+API it expects) with one ``TrainConfig``: the same MLP (``hidden_sizes``, ReLU, dueling heads
+when ``dueling``), double-DQN targets when ``double``, ``num_envs`` envs, ``batch_size``, one
+gradient step per vectorized env step, ``buffer_size``, ``learning_starts`` random steps
+(rejax's ``fill_buffer``), a hard target copy every ``target_update_period`` env steps, gamma,
+Adam with the same linear learning-rate decay, and epsilon from ``eps_start`` to ``eps_end``
+over ``eps_decay_steps``. What stays rejax's own: its squared loss (ours: ``config.loss``),
+elementwise gradient clipping (ours: global norm), and its treatment of a time limit as
+terminal (``done``), as every gymnax-0.0.x trainer does.
+
+Each side is compiled once (reported apart: ``jit(...).lower(...).compile()``) as one
+logging interval of ``log_interval`` env steps (ours: ``Trainer.run(ts, i, 1)``, what the CLI
+runs; rejax: ``algo.train(train_state=ts)`` with ``total_timesteps = log_interval`` and its
+evaluation callback replaced by nothing), then the intervals run in turn (ours, rejax, ours,
+...), so load changes on a shared machine hit both alike. After every interval, outside the
+timed region, both are evaluated greedily with the same evaluator (``jaxnav.evaluate``) on the
+same ``eval_episodes`` fresh episodes. Reported per side: compile s, train s (the timed
+intervals), env steps/s, the greedy success curve, and the train time until greedy success
+first reached ``threshold``; and the wall-time ratio rejax / ours.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections.abc import Callable
+from typing import Any
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import optax
+
+from jaxnav.config import TrainConfig
+from jaxnav.evaluate import run_episodes, summarize
+from jaxnav.train import Trainer
+from jaxnav.wrappers import GymnaxV0
+
+Side = dict[str, Any]  # one trainer: its compiled interval, state, network and results
+
+
+def _our_side(trainer: Trainer, key: jax.Array) -> Side:
+    c = trainer.config
+    t0 = time.perf_counter()
+    init = jax.jit(trainer.init).lower(key).compile()
+    state = init(key)
+    interval = jax.jit(lambda ts, log: trainer.run(ts, log, 1), donate_argnums=0)
+    interval = interval.lower(state, jnp.int32(0)).compile()
+    return {
+        "name": "jaxnav DQN",
+        "compile_s": time.perf_counter() - t0,
+        "state": state,
+        "step": lambda ts, i: interval(ts, jnp.int32(i))[0],
+        "q_params": lambda ts: ts.params,
+        "apply": trainer.network.apply,
+        "intervals": c.num_logs,
+    }
+
+
+def _rejax_side(trainer: Trainer, key: jax.Array) -> Side:
+    import rejax  # bench extra
+    from rejax.networks import DiscreteQNetwork, DuelingQNetwork, EpsilonGreedyPolicy
+
+    c = trainer.config
+
+    class PaperDQN(rejax.DQN):
+        """rejax's DQN with our network: rejax 0.1.3 fixes its hidden layers at (64, 64)."""
+
+        @classmethod
+        def create_agent(cls, config: dict, env: Any, env_params: Any) -> dict[str, Any]:
+            qnet = DuelingQNetwork if c.dueling else DiscreteQNetwork
+            agent = EpsilonGreedyPolicy(qnet)(
+                hidden_layer_sizes=tuple(c.hidden_sizes),
+                action_dim=env.action_space(env_params).n,
+                activation=nn.relu,
+            )
+            return {"agent": agent}
+
+    chunk = c.iterations_per_log * c.num_envs
+    algo = PaperDQN.create(
+        env=GymnaxV0(trainer.env),
+        env_params=trainer.env_params,
+        ddqn=c.double,
+        num_envs=c.num_envs,
+        total_timesteps=chunk,  # one logging interval per call; the state carries on
+        eval_freq=chunk,
+        skip_initial_evaluation=True,
+        fill_buffer=c.learning_starts,
+        buffer_size=c.buffer_size,
+        batch_size=c.batch_size,
+        num_epochs=c.updates_per_iteration,
+        target_update_freq=c.target_update_period,
+        polyak=1.0 - c.tau,  # rejax: target = polyak * target + (1 - polyak) * online
+        gamma=c.gamma,
+        learning_rate=optax.linear_schedule(c.lr, c.lr_end, trainer.total_updates),
+        max_grad_norm=c.max_grad_norm,
+        eps_start=c.eps_start,
+        eps_end=c.eps_end,
+        # rejax decays over exploration_fraction * total_timesteps of global steps
+        exploration_fraction=c.eps_decay_steps / chunk,
+    )
+    algo = algo.replace(eval_callback=lambda algo, ts, rng: jnp.zeros(()))
+    t0 = time.perf_counter()
+    init = jax.jit(algo.init_state).lower(key).compile()
+    state = init(key)
+    train = jax.jit(lambda ts: algo.train(train_state=ts)[0]).lower(state).compile()
+    return {
+        "name": "rejax DQN",
+        "compile_s": time.perf_counter() - t0,
+        "state": state,
+        "step": lambda ts, i: train(ts),
+        "q_params": lambda ts: ts.q_ts.params,
+        "apply": algo.agent.apply,
+        "intervals": c.num_logs,
+    }
+
+
+def _greedy_success(trainer: Trainer, episodes: int) -> Callable[[Callable, Any], float]:
+    """(apply, params) -> greedy success rate on the same ``episodes`` fresh episodes."""
+    env, env_params = trainer.env, trainer.env_params
+    key = jax.random.key(10_000)
+    max_steps = int(env_params.max_steps_in_episode)
+    compiled: dict[Callable, Callable] = {}
+
+    def success(apply: Callable, params: Any) -> float:
+        if apply not in compiled:
+
+            def run(params: Any) -> dict[str, jax.Array]:
+                policy = lambda k, obs: jnp.argmax(apply(params, obs), axis=-1)  # noqa: E731
+                return run_episodes(env, env_params, policy, key, episodes, max_steps)
+
+            compiled[apply] = jax.jit(run)
+        return summarize(compiled[apply](params))["success_rate"]
+
+    return success
+
+
+def measure(
+    config: TrainConfig, eval_episodes: int, threshold: float, seed: int = 0
+) -> dict[str, Any]:
+    """Train both sides interval by interval, in turn; see the module docstring."""
+    trainer = Trainer(config)
+    key = jax.random.key(seed)
+    sides = [_our_side(trainer, key), _rejax_side(trainer, key)]
+    success = _greedy_success(trainer, eval_episodes)
+    chunk = config.iterations_per_log * config.num_envs
+    for side in sides:
+        side |= {"train_s": 0.0, "curve": []}
+    for i in range(config.num_logs):
+        for side in sides:
+            t0 = time.perf_counter()
+            side["state"] = jax.block_until_ready(side["step"](side["state"], i))
+            side["train_s"] += time.perf_counter() - t0
+            rate = success(side["apply"], side["q_params"](side["state"]))
+            side["curve"].append(
+                {"env_steps": (i + 1) * chunk, "train_s": side["train_s"], "success": rate}
+            )
+            print(
+                f"{side['name']:10s} {(i + 1) * chunk:9,} env steps: train "
+                f"{side['train_s']:7.1f} s, greedy success {rate:.3f}",
+                file=sys.stderr,
+            )
+    out = {}
+    for side in sides:
+        reached = [p for p in side["curve"] if p["success"] >= threshold]
+        out[side["name"]] = {
+            "compile_s": side["compile_s"],
+            "train_s": side["train_s"],
+            "env_steps": config.num_logs * chunk,
+            "env_steps_per_s": config.num_logs * chunk / side["train_s"],
+            "final_success": side["curve"][-1]["success"],
+            "time_to_threshold_s": reached[0]["train_s"] if reached else None,
+            "steps_to_threshold": reached[0]["env_steps"] if reached else None,
+            "curve": side["curve"],
+        }
+    ours, theirs = out["jaxnav DQN"], out["rejax DQN"]
+    return {
+        "threshold": threshold,
+        "eval_episodes": eval_episodes,
+        "sides": out,
+        "wall_time_ratio": theirs["train_s"] / ours["train_s"],
+    }
+
+
+def table(result: dict[str, Any]) -> str:
+    thr = result["threshold"]
+    lines = [
+        f"| trainer | compile s | train s | env steps/s | final greedy success "
+        f"| train s to success >= {thr:g} |",
+        "|---|---:|---:|---:|---:|---:|",
+    ]
+    for name, s in result["sides"].items():
+        t = s["time_to_threshold_s"]
+        reached = "not reached" if t is None else f"{t:.1f} ({s['steps_to_threshold']:,} steps)"
+        lines.append(
+            f"| {name} | {s['compile_s']:.1f} | {s['train_s']:.1f} | "
+            f"{s['env_steps_per_s']:,.0f} | {s['final_success']:.3f} | {reached} |"
+        )
+    lines.append(f"\nWall-time ratio rejax / ours: **{result['wall_time_ratio']:.2f}x**")
+    return "\n".join(lines)
