@@ -1,6 +1,10 @@
 """Command lines: ``python -m jaxnav.train`` and ``python -m jaxnav.evaluate``.
 
 Bad input of any kind is one line on stderr naming the value, exit code 2, nothing written.
+Training exit codes: 0 done, 2 bad input, 3 diverged (NaN/Inf; the last good checkpoint is
+kept), 128 + signal number when stopped by SIGINT (130) or SIGTERM (143) after saving a
+checkpoint. An unfinished run lives in the hidden sibling ``.NAME.partial`` of its ``--out``
+and continues with ``--resume OUT``; it is renamed to ``OUT`` when complete.
 """
 
 from __future__ import annotations
@@ -10,9 +14,11 @@ import dataclasses
 import json
 import os
 import shutil
+import signal
 import sys
+import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -20,10 +26,14 @@ import jax
 import numpy as np
 
 from jaxnav import run_dir
-from jaxnav.config import TrainConfig
+from jaxnav.checkpoints import Checkpoints
+from jaxnav.config import MAX_STEPS, TrainConfig
 from jaxnav.evaluate import evaluate_seeds, mean_of
 from jaxnav.registration import registered_envs
-from jaxnav.train import METRIC_NAMES, Trainer
+from jaxnav.train import DIVERGENCE_QUANTITIES, METRIC_NAMES, Trainer
+
+EXIT_DIVERGED = 3
+CHECKPOINT_FLAGS = ("checkpoint_every", "keep_checkpoints")  # kept by --resume unless given
 
 HELP = {
     "env": f"environment id ({', '.join(registered_envs())})",
@@ -123,6 +133,24 @@ def train_parser() -> argparse.ArgumentParser:
     _add_env_args(p)
     p.add_argument("--out", type=Path, help="run directory (default: runs/<env>-<time>)")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.add_argument(
+        "--resume",
+        type=Path,
+        metavar="OUT",
+        help="continue the unfinished run OUT from its latest checkpoint (bitwise the same "
+        "result); other training flags must be left out or match the run's",
+    )
+    p.add_argument(
+        "--checkpoint-every",
+        type=int,
+        default=80_000,
+        metavar="STEPS",
+        help="env steps between checkpoints of the full training state (rounded to logging "
+        "intervals; one is also saved at the end and on SIGINT/SIGTERM)",
+    )
+    p.add_argument(
+        "--keep-checkpoints", type=int, default=2, metavar="K", help="newest checkpoints kept"
+    )
     return p
 
 
@@ -141,19 +169,25 @@ class Progress:
 
     def __init__(self, config: TrainConfig, quiet: bool):
         self.config, self.quiet = config, quiet
-        self.times: dict[int, float] = {}
-        self.start = time.perf_counter()
+        self.seconds: dict[int, float] = {}  # wall time of each interval, by its env steps
+        self.restart(0)
+
+    def restart(self, start_steps: int) -> float:
+        """Start timing (at ``start_steps`` env steps, when resumed); returns the time."""
+        self.start = self.last = time.perf_counter()
+        self.start_steps = start_steps
+        return self.start
 
     def __call__(self, metrics: dict[str, np.ndarray]) -> None:
         """``metrics`` of one logging interval, every seed (leading axis)."""
         steps = int(np.ravel(metrics["env_steps"])[0])
         now = time.perf_counter()
-        self.times[steps] = now
+        self.seconds[steps], self.last = now - self.last, now
         if self.quiet:
             return
         elapsed = now - self.start
         total = self.config.num_logs * self.config.iterations_per_log * self.config.num_envs
-        sps = steps * self.config.num_seeds / max(elapsed, 1e-9)
+        sps = (steps - self.start_steps) * self.config.num_seeds / max(elapsed, 1e-9)
         eta = (total - steps) * self.config.num_seeds / max(sps, 1e-9)
         mean = lambda k: float(np.mean(metrics[k]))  # noqa: E731
         print(
@@ -165,9 +199,8 @@ class Progress:
         )
 
     def steps_per_second(self, env_steps: np.ndarray) -> np.ndarray:
-        """Env steps/s (all seeds) of each logging interval, from the callback times."""
-        times = [self.start] + [self.times.get(int(s), np.nan) for s in env_steps]
-        dt = np.diff(np.asarray(times))
+        """Env steps/s (all seeds) of each logging interval (NaN where not timed)."""
+        dt = np.array([self.seconds.get(int(s), np.nan) for s in env_steps])
         interval = self.config.iterations_per_log * self.config.num_envs * self.config.num_seeds
         return interval / dt
 
@@ -187,15 +220,40 @@ def _fail(prog: str, message: str) -> int:
     return 2
 
 
+class Diverged(Exception):
+    """A seed's loss, Q-values or parameters became NaN or Inf (see ``TrainState.diverged``)."""
+
+
+class Interrupted(Exception):
+    """Stopped by a signal after saving a checkpoint; ``args[0]`` is the env step reached."""
+
+
+@dataclasses.dataclass
+class Saving:
+    """Checkpointing of a run being written to ``directory``: the full training state every
+    ``every`` logging intervals (and at the end) into ``directory/checkpoints``, the newest
+    ``keep`` kept, with metrics.csv so far beside them. ``signals`` is filled by the signal
+    handler: the run saves and stops after the current interval."""
+
+    directory: Path
+    every: int
+    keep: int
+    signals: list[int] = dataclasses.field(default_factory=list)
+
+
 def train_seeds(
-    trainer: Trainer, keys: jax.Array, progress: Progress
+    trainer: Trainer, keys: jax.Array, progress: Progress, saving: Saving | None = None
 ) -> tuple[Any, dict[str, np.ndarray], float, float]:
     """Train every seed of ``keys`` at once; ``(final state, metrics [seeds, logs], compile
     seconds, train seconds)``, with a progress line per logging interval.
 
     One compiled logging interval, called once per interval, with progress printed in
     between: a host callback inside the program would keep XLA's persistent cache from
-    storing it (JAX does not cache programs with host callbacks).
+    storing it (JAX does not cache programs with host callbacks). With ``saving``, the run
+    starts from the newest checkpoint there if any (the result is bitwise the same as an
+    uninterrupted run), raises ``Diverged`` at the end of an interval in which a seed
+    diverged (before saving it, so the newest checkpoint is a good one) and ``Interrupted``
+    after saving when a signal came.
     """
     t0 = time.perf_counter()
     init = jax.jit(jax.vmap(trainer.init)).lower(keys).compile()
@@ -205,57 +263,148 @@ def train_seeds(
     interval = jax.jit(one_interval, donate_argnums=0).lower(state_like, log_like).compile()
     compile_s = time.perf_counter() - t0
     print(f"compiled in {compile_s:.1f}s", flush=True)
-    progress.start = t0 = time.perf_counter()
-    state, chunks = init(keys), []
-    for log in range(trainer.config.num_logs):
+    c = trainer.config
+    steps_per_log = c.iterations_per_log * c.num_envs
+    like = jax.eval_shape(one_interval, state_like, log_like)[1]
+    metrics = {k: np.zeros((len(keys), c.num_logs), like[k].dtype) for k in METRIC_NAMES}
+    checkpoints = (
+        None if saving is None else Checkpoints(saving.directory / "checkpoints", saving.keep)
+    )
+    done = 0 if checkpoints is None else checkpoints.latest() or 0
+    if done:
+        try:
+            done, state, metrics, meta = checkpoints.restore(state_like, metrics)
+        except Exception as e:  # orbax raises many kinds for a damaged or foreign checkpoint
+            msg = f"{checkpoints.directory}: cannot restore checkpoint {done}: {e}"
+            raise ValueError(msg.splitlines()[0]) from None
+        progress.seconds.update({int(k): v for k, v in meta["seconds"].items()})
+        print(f"resumed from the checkpoint at env step {done * steps_per_log:,}", flush=True)
+    else:
+        state = init(keys)
+    t0 = progress.restart(done * steps_per_log)
+    for log in range(done, c.num_logs):
         state, chunk = interval(state, np.int32(log))
-        chunks.append(jax.device_get(chunk))  # [seeds, 1] each
-        progress(chunks[-1])
+        chunk = jax.device_get(chunk)  # [seeds, 1] each
+        for k in METRIC_NAMES:
+            metrics[k][:, log] = chunk[k][:, 0]
+        progress(chunk)
+        if saving is None:
+            continue
+        _raise_if_diverged(state, c, checkpoints)
+        end = log + 1 == c.num_logs
+        if (log + 1) % saving.every == 0 or end or saving.signals:
+            seconds = {str(k): v for k, v in progress.seconds.items()}
+            checkpoints.save(log + 1, state, metrics, {"seconds": seconds})
+            so_far = {k: v[:, : log + 1] for k, v in metrics.items()}
+            run_dir.write_metrics_csv(saving.directory / "metrics.csv", so_far, run_dir.seeds_of(c))
+        if saving.signals and not end:
+            checkpoints.close()
+            raise Interrupted((log + 1) * steps_per_log)
     train_s = time.perf_counter() - t0
-    metrics = {k: np.concatenate([c[k] for c in chunks], axis=1) for k in METRIC_NAMES}
+    if checkpoints is not None:
+        checkpoints.close()
     return state, metrics, compile_s, train_s
+
+
+def _raise_if_diverged(state: Any, c: TrainConfig, checkpoints: Checkpoints) -> None:
+    codes, at = np.asarray(state.diverged), np.asarray(state.diverged_at)
+    if not codes.any():
+        return
+    last_good = (checkpoints.latest() or 0) * c.iterations_per_log * c.num_envs
+    bad = [
+        f"seed {seed}: {DIVERGENCE_QUANTITIES[code - 1]} became NaN or Inf at env step {a:,}"
+        for seed, code, a in zip(run_dir.seeds_of(c), codes, at, strict=True)
+        if code
+    ]
+    kept = (
+        "no checkpoint was saved before it"
+        if not last_good
+        else f"the last good checkpoint (env step {last_good:,}) is kept in {checkpoints.directory}"
+    )
+    checkpoints.close()
+    raise Diverged(f"{'; '.join(bad)}; {kept}")
 
 
 def train_main(argv: Sequence[str] | None = None) -> int:
     prog = "jaxnav.train"
     t_start = time.perf_counter()
+    argv = sys.argv[1:] if argv is None else list(argv)
     try:
         args = train_parser().parse_args(argv)
-        config = config_from_args(args)
-        config.validate()
-        out = args.out or Path("runs") / f"{config.env}-{time.strftime('%Y%m%d-%H%M%S')}"
-        run_dir.check_writable(out)
+        if args.resume is not None:
+            out, partial, config = resumable_run(args, argv)
+        else:
+            config = config_from_args(args)
+            config.validate()
+            out = args.out or Path("runs") / f"{config.env}-{time.strftime('%Y%m%d-%H%M%S')}"
+            partial = run_dir.partial_dir(out)
+            run_dir.check_writable(out)
+        if not 1 <= args.checkpoint_every <= MAX_STEPS:
+            raise ValueError(
+                f"--checkpoint-every {args.checkpoint_every}: must be in [1, {MAX_STEPS}]"
+            )
+        if not 1 <= args.keep_checkpoints <= 1000:
+            raise ValueError(f"--keep-checkpoints {args.keep_checkpoints}: must be in [1, 1000]")
         progress = Progress(config, args.quiet)
         trainer = Trainer(config)
     except (UsageError, ValueError) as e:
         return _fail(prog, str(e))
 
     enable_compilation_cache()
-    keys = run_dir.seed_keys(config)
+    steps_per_log = config.iterations_per_log * config.num_envs
+    every = max(1, round(args.checkpoint_every / steps_per_log))
+    saving = Saving(partial, every, args.keep_checkpoints)
+    if args.resume is None:
+        partial.mkdir(parents=True)
+        document = run_dir.config_document(config, trainer)
+        document["checkpointing"] = {k: getattr(args, k) for k in CHECKPOINT_FLAGS}
+        run_dir.write_json(partial / "config.json", document)
+    resume = f"python -m jaxnav.train --resume {out}"
     print(
         f"training {config.env} for {config.total_timesteps:,} steps x {config.num_seeds} "
-        f"seed(s), {config.num_envs} envs each -> {out}",
+        f"seed(s), {config.num_envs} envs each -> {out}\n"
+        f"checkpoint every {every * steps_per_log:,} env steps in {partial}; "
+        f"if stopped, continue with: {resume}",
         flush=True,
     )
-    state, metrics, compile_s, train_s = train_seeds(trainer, keys, progress)
-    metrics["sps"] = np.broadcast_to(
-        progress.steps_per_second(metrics["env_steps"][0]), metrics["env_steps"].shape
-    )
+    restore_signal_handlers = _stop_on_signals(saving.signals)
+    try:
+        state, metrics, compile_s, train_s = train_seeds(
+            trainer, run_dir.seed_keys(config), progress, saving
+        )
+    except Interrupted as e:
+        name = signal.Signals(saving.signals[0]).name
+        print(
+            f"{prog}: stopped by {name} at env step {e.args[0]:,} (checkpoint saved); "
+            f"continue with: {resume}",
+            file=sys.stderr,
+        )
+        return 128 + saving.signals[0]
+    except Diverged as e:
+        print(f"{prog}: diverged: {e}", file=sys.stderr)
+        return EXIT_DIVERGED
+    except ValueError as e:  # a checkpoint that does not restore
+        return _fail(prog, str(e))
+    finally:
+        restore_signal_handlers()
+
+    # wall-clock timing apart from metrics.csv, which is bitwise reproducible
+    sps = progress.steps_per_second(metrics["env_steps"][0])
+    shape = metrics["env_steps"].shape
+    timing = {"env_steps": metrics["env_steps"], "sps": np.broadcast_to(sps, shape)}
     t0 = time.perf_counter()
     trained = evaluate_seeds(trainer, state.params, config.eval_episodes, seed=10_000)
     rand = evaluate_seeds(trainer, state.params, config.eval_episodes, 10_000, "random")
     eval_s = time.perf_counter() - t0
 
-    # write into a hidden sibling, then rename: a crash never leaves half a run behind
-    partial = out.with_name(f".{out.name}.partial")
-    shutil.rmtree(partial, ignore_errors=True)
-    partial.mkdir(parents=True)
-    run_dir.write_json(partial / "config.json", run_dir.config_document(config, trainer))
-    run_dir.write_metrics_csv(partial / "metrics.csv", metrics, run_dir.seeds_of(config))
+    # complete the hidden sibling, then rename: a crash never leaves half a run at ``out``
+    seeds = run_dir.seeds_of(config)
+    run_dir.write_metrics_csv(partial / "metrics.csv", metrics, seeds)
+    run_dir.write_metrics_csv(partial / "timing.csv", timing, seeds)
     run_dir.save_params(partial, state.params)
     summary = {
         "env": config.env,
-        "seeds": run_dir.seeds_of(config),
+        "seeds": seeds,
         "eval_episodes": config.eval_episodes,
         "trained": mean_of(trained),
         "trained_per_seed": trained,
@@ -269,6 +418,7 @@ def train_main(argv: Sequence[str] | None = None) -> int:
     if out.exists():
         out.rmdir()  # checked empty before training
     partial.rename(out)
+    shutil.rmtree(out / "checkpoints")  # the run is complete: its final state is params/
     print_eval_table(
         config.env, {"trained (greedy)": summary["trained"], "random": summary["random_policy"]}
     )
@@ -277,6 +427,70 @@ def train_main(argv: Sequence[str] | None = None) -> int:
         f"total {summary['wall_s']:.1f}s; run saved to {out}"
     )
     return 0
+
+
+def resumable_run(args: argparse.Namespace, argv: list[str]) -> tuple[Path, Path, TrainConfig]:
+    """``(out, partial, config)`` of the unfinished run ``--resume`` names; ``ValueError``
+    if there is none or a training flag given now differs from the run's config."""
+    out, partial = run_dir.find_unfinished(args.resume)
+    if args.out is not None:
+        raise ValueError(f"--out {args.out}: --resume continues the run in place; leave --out out")
+    saved = run_dir.load_config(partial)
+    # flags given on this command line (argparse keeps values already in the namespace)
+    given = vars(train_parser().parse_args(argv, argparse.Namespace(**dict.fromkeys(vars(args)))))
+    given = {k: v for k, v in given.items() if v is not None}
+    saved_flags = json.loads((partial / "config.json").read_text()).get("checkpointing", {})
+    for name in CHECKPOINT_FLAGS:
+        setattr(args, name, given.get(name, saved_flags.get(name, getattr(args, name))))
+    asked = config_from_args(argparse.Namespace(**{**vars(args), **_as_args(saved), **given}))
+    differ = [
+        f.name
+        for f in dataclasses.fields(TrainConfig)
+        if getattr(asked, f.name) != getattr(saved, f.name)
+    ]
+    if differ:
+        was = ", ".join(f"{n}={getattr(saved, n)!r}" for n in differ)
+        now = ", ".join(f"{n}={getattr(asked, n)!r}" for n in differ)
+        raise ValueError(
+            f"--resume {args.resume}: the run was started with {was}, not {now}; "
+            "leave these flags out to resume it"
+        )
+    return out, partial, saved
+
+
+def _as_args(config: TrainConfig) -> dict[str, Any]:
+    """``config`` as the namespace values of ``train_parser`` (its inverse is config_from_args)."""
+    values = {f.name: getattr(config, f.name) for f in dataclasses.fields(TrainConfig)}
+    values["env_arg"] = list(values.pop("env_kwargs").items())
+    return values
+
+
+def _stop_on_signals(received: list[int]) -> Callable[[], None]:
+    """SIGINT/SIGTERM append to ``received`` (the training loop saves and stops); a second
+    one ends the process at once, as the default would. Returns a function restoring the
+    previous handlers. No-op outside the main thread (Python only signals that one)."""
+    if threading.current_thread() is not threading.main_thread():
+        return lambda: None
+
+    def handler(signum: int, frame: Any) -> None:
+        if received:  # asked twice: stop now, the last checkpoint stays
+            signal.signal(signum, signal.SIG_DFL)
+            os.kill(os.getpid(), signum)
+        received.append(signum)
+        print(
+            f"\n{signal.Signals(signum).name}: saving a checkpoint after this logging "
+            "interval, then stopping (again to stop without saving)",
+            file=sys.stderr,
+            flush=True,
+        )
+
+    previous = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
+
+    def restore() -> None:
+        for s, h in previous.items():
+            signal.signal(s, h)
+
+    return restore
 
 
 def print_eval_table(env: str, rows: dict[str, dict[str, float]]) -> None:

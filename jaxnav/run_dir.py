@@ -40,10 +40,33 @@ def environment_info() -> dict[str, Any]:
     }
 
 
+def partial_dir(out: Path) -> Path:
+    """Where the run for ``out`` lives until it is complete (then renamed to ``out``)."""
+    return out.with_name(f".{out.name}.partial")
+
+
+def find_unfinished(run: Path) -> tuple[Path, Path]:
+    """``(out, partial)`` of the unfinished run named by its ``out`` or its partial directory;
+    ``ValueError`` if there is none."""
+    if run.name.startswith(".") and run.name.endswith(".partial"):
+        run = run.with_name(run.name[1 : -len(".partial")])
+    partial = partial_dir(run)
+    if not (partial / "config.json").is_file():
+        if (run / "summary.json").is_file():
+            raise ValueError(f"--resume {run}: the run is complete; nothing to resume")
+        raise ValueError(f"--resume {run}: no unfinished run there (no {partial / 'config.json'})")
+    return run, partial
+
+
 def check_writable(out: Path) -> None:
     """Raise ``ValueError`` if a run cannot be written to ``out`` (checked before any work)."""
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise ValueError(f"--out {out}: already exists and is not an empty directory")
+    if partial_dir(out).exists():
+        raise ValueError(
+            f"--out {out}: an unfinished run is in {partial_dir(out)}; continue it with "
+            f"--resume {out} or delete it"
+        )
     parent = out.parent if not out.exists() else out
     while not parent.exists():
         parent = parent.parent

@@ -35,6 +35,11 @@ METRIC_NAMES = (
     "lr",
 )
 
+# What the divergence guard watches, in the order an iteration computes them (Q-values of the
+# acting step, the TD loss, the parameters after the update): in the first iteration where any
+# is NaN or Inf, ``TrainState.diverged`` becomes 1 + the index of the first such (0 before).
+DIVERGENCE_QUANTITIES = ("q_values", "loss", "params")
+
 
 @struct.dataclass
 class HParams:
@@ -67,6 +72,9 @@ class TrainState:
     episode_length: jax.Array  # [N]
     key: jax.Array
     hparams: HParams
+    # divergence guard: set once, at the first iteration where a watched quantity is NaN/Inf
+    diverged: jax.Array  # int32, see DIVERGENCE_QUANTITIES
+    diverged_at: jax.Array  # int32, env steps at the end of that iteration (0 if not diverged)
 
 
 class Trainer:
@@ -122,6 +130,8 @@ class Trainer:
             episode_length=jnp.zeros(c.num_envs, jnp.int32),
             key=k_run,
             hparams=hp,
+            diverged=jnp.zeros((), jnp.int32),
+            diverged_at=jnp.zeros((), jnp.int32),
         )
 
     def epsilon(self, hp: HParams, env_steps: jax.Array) -> jax.Array:
@@ -209,12 +219,33 @@ class Trainer:
             lambda ts: ts,
             ts,
         )
+        ts = self._check_divergence(ts, q, aux, env_steps + c.num_envs)
         stats |= {
             "loss_sum": aux["loss"] * aux["updated"],
             "q_sum": aux["q_mean"] * aux["updated"],
             "updated": aux["updated"],
         }
         return ts, stats
+
+    def _check_divergence(
+        self, ts: TrainState, q: jax.Array, aux: dict, env_steps: jax.Array
+    ) -> TrainState:
+        """Record the first iteration with a non-finite parameter, Q-value or loss. The run
+        keeps computing (a flag costs nothing under vmap; a skipped update would not); the
+        caller stops after the interval and keeps its last checkpoint from before it."""
+        finite = jnp.stack(
+            [
+                jnp.isfinite(q).all() & jnp.isfinite(aux["q_mean"]) & jnp.isfinite(aux["q_max"]),
+                jnp.isfinite(aux["loss"]),
+                jnp.stack([jnp.isfinite(x).all() for x in jax.tree.leaves(ts.params)]).all(),
+            ]
+        )
+        code = jnp.where(finite.all(), 0, jnp.argmin(finite) + 1).astype(jnp.int32)
+        first = (ts.diverged == 0) & (code > 0)
+        return ts.replace(
+            diverged=jnp.where(first, code, ts.diverged),
+            diverged_at=jnp.where(first, env_steps, ts.diverged_at),
+        )
 
     def _log_interval(self, ts: TrainState, log_index: jax.Array) -> tuple[TrainState, dict]:
         c = self.config

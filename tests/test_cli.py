@@ -34,7 +34,7 @@ def tiny_run(tmp_path_factory):
 
 def test_train_writes_a_complete_run(tiny_run):
     assert sorted(p.name for p in tiny_run.iterdir()) == [
-        "config.json", "metrics.csv", "params", "summary.json",
+        "config.json", "metrics.csv", "params", "summary.json", "timing.csv",
     ]  # fmt: skip
     config = json.loads((tiny_run / "config.json").read_text())
     assert config["config"]["env_kwargs"] == {"size": 7}
@@ -42,9 +42,14 @@ def test_train_writes_a_complete_run(tiny_run):
     assert config["environment"]["packages"]["jax"]
     rows = list(csv.DictReader((tiny_run / "metrics.csv").open()))
     assert len(rows) == 2 * 4  # seeds x logging intervals
-    assert {"env_steps", "mean_return", "success_rate", "loss", "epsilon", "sps"} <= set(rows[0])
+    assert {"env_steps", "mean_return", "success_rate", "loss", "epsilon"} <= set(rows[0])
     assert [int(r["env_steps"]) for r in rows[:4]] == [1000, 2000, 3000, 4000]
     assert {r["seed"] for r in rows} == {"0", "1"}
+    assert [r["loss"] for r in rows[:4]] != [r["loss"] for r in rows[4:]]  # seeds differ
+    # wall-clock rates apart, so that metrics.csv is bitwise reproducible
+    timing = list(csv.DictReader((tiny_run / "timing.csv").open()))
+    assert [r["env_steps"] for r in timing] == [r["env_steps"] for r in rows]
+    assert all(float(r["sps"]) > 0 for r in timing)
     summary = json.loads((tiny_run / "summary.json").read_text())
     for policy in ("trained", "random_policy"):
         assert 0.0 <= summary[policy]["success_rate"] <= 1.0

@@ -1,0 +1,99 @@
+"""Checkpoints of an unfinished training run: every seed's full ``TrainState`` (params, target,
+optimizer state, replay buffer, env states, RNG keys, hyperparameters, divergence flags) and
+the metrics of the logging intervals done so far, so a resumed run continues bitwise where the
+saved one stopped.
+
+One orbax ``CheckpointManager`` directory; the step number is the count of logging intervals
+done. Orbax writes each checkpoint to a temporary directory and renames it when complete, so a
+crash mid-save leaves the previous checkpoints intact (and the half-written one is ignored and
+cleaned up on the next open).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+import orbax.checkpoint as ocp
+
+
+def _is_key(x: Any) -> bool:
+    return jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key)
+
+
+def _to_disk(tree: Any) -> Any:
+    """Typed PRNG keys as their raw words: orbax stores plain arrays only."""
+    return jax.tree.map(lambda x: jax.random.key_data(x) if _is_key(x) else x, tree)
+
+
+def _from_disk(tree: Any, like: Any) -> Any:
+    def back(x, like_leaf):
+        if not _is_key(like_leaf):
+            return x
+        key = jax.random.wrap_key_data(x)  # the default impl, which made the saved keys
+        if key.dtype != like_leaf.dtype:
+            raise ValueError(f"keys of type {like_leaf.dtype} expected, {key.dtype} restored")
+        return key
+
+    return jax.tree.map(back, tree, like)
+
+
+class Checkpoints:
+    """``save(logs_done, state, metrics, meta)`` / ``restore(like_state, like_metrics)``.
+
+    ``state`` is the (seed-batched) training state; ``metrics`` maps names to arrays
+    [num_seeds, num_logs] of which the first ``logs_done`` columns are filled; ``meta`` is a
+    small JSON-able dict (wall times, which do not affect the results).
+    """
+
+    def __init__(self, directory: Path, keep: int):
+        self.directory = directory.absolute()
+        self.manager = ocp.CheckpointManager(
+            self.directory,
+            options=ocp.CheckpointManagerOptions(
+                max_to_keep=keep,
+                create=True,
+                cleanup_tmp_directories=True,  # a save cut by a crash
+                enable_async_checkpointing=False,  # saved before the next chunk starts
+            ),
+        )
+
+    def latest(self) -> int | None:
+        """Logging intervals done at the newest complete checkpoint (``None`` if none)."""
+        return self.manager.latest_step()
+
+    def save(self, logs_done: int, state: Any, metrics: dict[str, Any], meta: dict) -> None:
+        arrays = {"state": _to_disk(jax.device_get(state)), "metrics": metrics}
+        self.manager.save(
+            logs_done,
+            args=ocp.args.Composite(
+                arrays=ocp.args.StandardSave(arrays), meta=ocp.args.JsonSave(meta)
+            ),
+        )
+        self.manager.wait_until_finished()
+
+    def restore(self, like_state: Any, like_metrics: dict[str, Any]) -> tuple[int, Any, dict, dict]:
+        """``(logs_done, state, metrics, meta)`` of the newest checkpoint; the ``like_*``
+        arguments give structure, shapes and dtypes (abstract values are fine)."""
+        step = self.latest()
+        if step is None:
+            raise FileNotFoundError(f"{self.directory}: no checkpoint")
+        abstract = jax.tree.map(
+            lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype),
+            {"state": jax.eval_shape(_to_disk, like_state), "metrics": like_metrics},
+        )
+        restored = self.manager.restore(
+            step,
+            args=ocp.args.Composite(
+                arrays=ocp.args.StandardRestore(abstract), meta=ocp.args.JsonRestore()
+            ),
+        )
+        arrays = restored["arrays"]
+        state = _from_disk(arrays["state"], like_state)
+        metrics = {k: np.array(arrays["metrics"][k]) for k in like_metrics}  # keep the order
+        return step, state, metrics, restored["meta"]
+
+    def close(self) -> None:
+        self.manager.close()
