@@ -151,14 +151,12 @@ def td_loss(
     Target: ``returns + bootstrap_discount * Q_target(s', a*)`` with ``a* = argmax Q_target(s')``
     (simple DQN, eq. 5) or ``a* = argmax Q_online(s')`` (``double``, eq. 6).
     """
-    b = batch.obs.shape[0]
-    if double:  # one forward pass of the online net over s and s'
-        q_both = apply_fn(params, jnp.concatenate([batch.obs, batch.bootstrap_obs]))
-        q, q_next_online = q_both[:b], q_both[b:]
-    else:
-        q = apply_fn(params, batch.obs)
+    q = apply_fn(params, batch.obs)
     q_next_target = apply_fn(target_params, batch.bootstrap_obs)
     if double:
+        # its own pass, gradient stopped: one pass over s and s' together would also run the
+        # backward pass over the s' rows (zero cotangents, full cost: 1.7x the gradient time)
+        q_next_online = apply_fn(jax.lax.stop_gradient(params), batch.bootstrap_obs)
         best = jnp.argmax(q_next_online, axis=-1)
     else:
         best = jnp.argmax(q_next_target, axis=-1)
