@@ -25,8 +25,9 @@ test: $(STAMP)
 lint: $(STAMP)
 	$(BIN)/python -m ruff check jaxnav tests benchmarks
 
+# ours vs gymnax, navix, jaxmarl's JaxNav and rejax in one run; ARGS="--num-envs 1024,262144" etc.
 bench: $(STAMP)
-	$(BIN)/python -m benchmarks.env_throughput
+	$(BIN)/python -m benchmarks.compare $(ARGS)
 	$(BIN)/python -m benchmarks.train_throughput
 
 clean:

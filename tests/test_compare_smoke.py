@@ -1,0 +1,136 @@
+"""Smoke tests of benchmarks/compare.py, train_vs_rejax.py and compile_time.py at tiny sizes."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = str(Path(__file__).resolve().parents[1])  # `benchmarks` is not installed; plain `pytest`
+if ROOT not in sys.path:
+    sys.path.insert(0, ROOT)
+
+from benchmarks import compare, compile_time, env_throughput, train_vs_rejax  # noqa: E402
+from jaxnav.config import TrainConfig  # noqa: E402
+
+TINY = {
+    "env_kwargs": {"size": 5},
+    "hidden_sizes": [16],
+    "total_timesteps": 1000,
+    "learning_starts": 200,
+    "log_interval": 500,
+    "buffer_size": 1000,
+    "batch_size": 16,
+    "num_envs": 4,
+    "target_update_period": 100,
+    "eps_decay_steps": 1000,
+}
+
+
+def test_env_section_writes_table_ratios_and_plot(tmp_path: Path) -> None:
+    out = tmp_path / "compare.json"
+    argv = ["--sections", "env", "--num-envs", "1,4", "--steps", "6", "--rounds", "2"]
+    argv += ["--target-s", "10", "--envs", "GridMaze-v0,FourRooms-misc", "--out", str(out)]
+    result = compare.main(argv)
+    data = json.loads(out.read_text())
+    assert data == json.loads(json.dumps(result))
+    assert data["command"].startswith("python -m benchmarks.compare --sections env")
+    rows = data["env"]["rows"]
+    assert {(r["env"], r["num_envs"]) for r in rows} == {
+        (e, n) for e in ("GridMaze-v0", "FourRooms-misc") for n in (1, 4)
+    }
+    for r in rows:
+        assert r["steps"] == 6 and len(r["run_s"]) == 2  # --target-s 10 s: never fewer steps
+        assert r["compile_s"] > 0 and r["steps_per_s"] > 0
+        assert r["peak_bytes"] is None or r["peak_bytes"] > 0
+    sps = {(r["env"], r["num_envs"]): r["steps_per_s"] for r in rows}
+    ratios = data["env"]["ratios"]
+    assert [(r["ours"], r["peer"], r["num_envs"]) for r in ratios] == [
+        ("GridMaze-v0", "FourRooms-misc", 1),
+        ("GridMaze-v0", "FourRooms-misc", 4),
+    ]
+    for r in ratios:
+        n = r["num_envs"]
+        assert r["ratio"] == pytest.approx(sps[("GridMaze-v0", n)] / sps[("FourRooms-misc", n)])
+    md = out.with_suffix(".md").read_text()
+    assert "| GridMaze-v0 / FourRooms-misc |" in md and "| env | 1 envs | 4 envs |" in md
+    assert out.with_suffix(".png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_slow_rows_take_fewer_steps() -> None:
+    row = env_throughput.prepare("GridMaze-v0", 4, steps=50, target_s=1e-9)
+    assert row["steps"] == 1  # one step already takes longer than the target
+    assert row["run"]() > 0
+
+
+def test_peer_rows_build_and_trace_and_bad_rows_are_skipped() -> None:
+    pytest.importorskip("navix")
+    pytest.importorskip("jaxmarl")
+    names = list(env_throughput.PEER_ENVS)
+    assert env_throughput.usable(names) == (names, {})
+    assert env_throughput.usable(["FourRooms-misc", "RobotRandom-v0 warp"])[0] == ["FourRooms-misc"]
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["--envs", "NoSuchEnv"],
+        ["--sections", "env,gpu"],
+        ["--num-envs", "0"],
+        ["--num-envs", "4,x"],
+        ["--threshold", "1.5"],
+        ["--train-config", '{"no_such_field": 1}'],
+        ["--train-config", '{"batch_size": 0}'],
+        ["--train-config", "{not json"],
+    ],
+)
+def test_bad_arguments_exit_2(argv: list[str], capsys: pytest.CaptureFixture) -> None:
+    with pytest.raises(SystemExit) as e:
+        compare.parse_args(argv)
+    assert e.value.code == 2
+    assert "error:" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_train_vs_rejax_same_budget_and_curves() -> None:
+    pytest.importorskip("rejax")
+    config = compare.train_config(json.dumps(TINY))
+    assert isinstance(config, TrainConfig) and config.hidden_sizes == (16,)
+    result = train_vs_rejax.measure(config, eval_episodes=16, threshold=0.5)
+    sides = result["sides"]
+    assert set(sides) == {"jaxnav DQN", "rejax DQN"}
+    for s in sides.values():
+        assert s["compile_s"] > 0 and s["train_s"] > 0 and s["env_steps"] == 1000
+        assert [p["env_steps"] for p in s["curve"]] == [500, 1000]
+        times = [p["train_s"] for p in s["curve"]]
+        assert times == sorted(times) and times[-1] == pytest.approx(s["train_s"])
+        assert all(0.0 <= p["success"] <= 1.0 for p in s["curve"])
+        reached = [p for p in s["curve"] if p["success"] >= 0.5]
+        assert s["time_to_threshold_s"] == (reached[0]["train_s"] if reached else None)
+    ratio = sides["rejax DQN"]["train_s"] / sides["jaxnav DQN"]["train_s"]
+    assert result["wall_time_ratio"] == pytest.approx(ratio)
+    assert "Wall-time ratio rejax / ours" in train_vs_rejax.table(result)
+
+
+def test_timed_command_marks_the_line_and_reports_failures(tmp_path: Path) -> None:
+    code = "import time; print('a', flush=True); time.sleep(0.3); print('compiled in 1s')"
+    run = compile_time.timed_command(["-c", code], tmp_path / "cache", "compiled in")
+    assert 0.3 <= run["first_step_s"] <= run["total_s"]
+    with pytest.raises(RuntimeError, match="boom"):
+        compile_time.timed_command(["-c", "raise SystemExit('boom')"], tmp_path, None)
+
+
+@pytest.mark.slow
+def test_second_cli_run_is_served_from_the_compilation_cache(tmp_path: Path) -> None:
+    """The training program has no host callback, so the second run loads it from the
+    persistent cache instead of compiling it again."""
+    flags = ["--quiet", "--env-arg", "size=5", "--hidden-sizes", "16", "--num-envs", "4"]
+    flags += ["--total-timesteps", "400", "--learning-starts", "100", "--log-interval", "200"]
+    flags += ["--buffer-size", "400", "--batch-size", "8", "--eval-episodes", "10"]
+    row = compile_time.measure_train("tiny", flags, tmp_path)
+    first, second = row["first_run"], row["second_run"]
+    assert second["compile_s"] < 0.5 * first["compile_s"], (first, second)
+    for run in (first, second):
+        assert 0 < run["first_step_s"] <= run["total_s"]
