@@ -75,7 +75,7 @@ def training_curves(results: dict[str, Any]) -> Any:
     fig.suptitle(
         f"Training (epsilon-greedy episodes), mean and 95% CI over {n_seeds} seeds", fontsize=11
     )
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0, 1, 1 - 0.06 / len(studies)))
     return fig
 
 
@@ -138,9 +138,11 @@ def outcomes(results: dict[str, Any]) -> Any:
         ax.grid(axis="y", alpha=0.3)
     for ax in axes.ravel()[len(suites) :]:
         ax.axis("off")
-    axes[0, 0].legend(fontsize=7, loc="upper right")
     fig.suptitle(f"Test outcomes, mean and 95% CI over {len(results['seeds'])} seeds", fontsize=11)
-    fig.tight_layout()
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    top = 1 - 0.1 / rows
+    fig.legend(handles, labels, loc="upper center", ncol=3, bbox_to_anchor=(0.5, top + 0.04))
+    fig.tight_layout(rect=(0, 0, 1, top))
     return fig
 
 
@@ -174,7 +176,7 @@ def trajectories(results: dict[str, Any], arrays: dict[str, np.ndarray]) -> Any:
         + (", laser rays at 4 steps" if lasers else ""),
         fontsize=11,
     )
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0, 1, 1 - 0.06 / len(suites)))
     return fig
 
 
