@@ -325,30 +325,36 @@ def _raise_if_diverged(state: Any, c: TrainConfig, checkpoints: Checkpoints) -> 
     raise Diverged(f"{'; '.join(bad)}; {kept}")
 
 
+def prepare_training(
+    argv: list[str],
+) -> tuple[argparse.Namespace, TrainConfig, Path, Path, Trainer]:
+    """``(args, config, out, partial, trainer)``: every check ``train_main`` makes before it
+    writes or compiles anything; ``UsageError`` or ``ValueError`` (one line) on bad input."""
+    args = train_parser().parse_args(argv)
+    if args.resume is not None:
+        out, partial, config = resumable_run(args, argv)
+    else:
+        config = config_from_args(args)
+        config.validate()
+        out = args.out or Path("runs") / f"{config.env}-{time.strftime('%Y%m%d-%H%M%S')}"
+        partial = run_dir.partial_dir(out)
+        run_dir.check_writable(out)
+    if not 1 <= args.checkpoint_every <= MAX_STEPS:
+        raise ValueError(f"--checkpoint-every {args.checkpoint_every}: must be in [1, {MAX_STEPS}]")
+    if not 1 <= args.keep_checkpoints <= 1000:
+        raise ValueError(f"--keep-checkpoints {args.keep_checkpoints}: must be in [1, 1000]")
+    return args, config, out, partial, Trainer(config)
+
+
 def train_main(argv: Sequence[str] | None = None) -> int:
     prog = "jaxnav.train"
     t_start = time.perf_counter()
     argv = sys.argv[1:] if argv is None else list(argv)
     try:
-        args = train_parser().parse_args(argv)
-        if args.resume is not None:
-            out, partial, config = resumable_run(args, argv)
-        else:
-            config = config_from_args(args)
-            config.validate()
-            out = args.out or Path("runs") / f"{config.env}-{time.strftime('%Y%m%d-%H%M%S')}"
-            partial = run_dir.partial_dir(out)
-            run_dir.check_writable(out)
-        if not 1 <= args.checkpoint_every <= MAX_STEPS:
-            raise ValueError(
-                f"--checkpoint-every {args.checkpoint_every}: must be in [1, {MAX_STEPS}]"
-            )
-        if not 1 <= args.keep_checkpoints <= 1000:
-            raise ValueError(f"--keep-checkpoints {args.keep_checkpoints}: must be in [1, 1000]")
-        progress = Progress(config, args.quiet)
-        trainer = Trainer(config)
+        args, config, out, partial, trainer = prepare_training(argv)
     except (UsageError, ValueError) as e:
         return _fail(prog, str(e))
+    progress = Progress(config, args.quiet)
 
     enable_compilation_cache()
     steps_per_log = config.iterations_per_log * config.num_envs

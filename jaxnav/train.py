@@ -9,6 +9,7 @@ trains several seeds (and several hyperparameter settings: ``HParams`` are pytre
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable
 from functools import partial
 from typing import Any
@@ -90,6 +91,23 @@ class Trainer:
             dueling=config.dueling,
         )
         self.obs_size = self.env.observation_space(self.env_params).shape[0]
+        self._check_memory()
+
+    def _check_memory(self) -> None:
+        """``ValueError`` for sizes whose replay buffers and networks (params, target, two
+        Adam moments) cannot fit in this machine's memory: refused before allocating."""
+        c = self.config
+        sizes = (self.obs_size, *c.hidden_sizes, self.env.num_actions + 1)
+        weights = sum((a + 1) * b for a, b in zip(sizes[:-1], sizes[1:], strict=False))
+        replay = c.buffer_rows * c.num_envs * (2 * self.obs_size + 4)
+        need = 4 * c.num_seeds * (replay + 4 * weights)
+        have = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+        if need > have:
+            raise ValueError(
+                f"buffer_size={c.buffer_size}, hidden_sizes={','.join(map(str, c.hidden_sizes))}"
+                f", num_envs={c.num_envs}, num_seeds={c.num_seeds}: training needs about "
+                f"{need / 2**30:.1f} GiB, more than this machine's {have / 2**30:.1f} GiB"
+            )
 
     # -- pieces ---------------------------------------------------------------------
     def default_hparams(self) -> HParams:

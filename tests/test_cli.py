@@ -86,6 +86,12 @@ def test_evaluate_reads_the_run_and_generalizes(tiny_run, tmp_path, capsys):
         (["--learning-starts", "10000000"], "learning_starts=10000000"),
         (["--gamma", "1.5"], "gamma=1.5"),
         (["--dueling", "maybe"], "maybe"),
+        # sizes that would exhaust memory are refused before anything is allocated
+        (["--buffer-size", "1000000000", "--num-seeds", "64"], "buffer_size=1000000000"),
+        (["--hidden-sizes", "65536,65536,65536", "--num-seeds", "64"], "hidden_sizes=65536"),
+        (["--env-arg", "size=255"], "size=255"),
+        (["--checkpoint-every", "0"], "--checkpoint-every 0"),
+        (["--keep-checkpoints", "0"], "--keep-checkpoints 0"),
     ],
 )
 def test_bad_input_is_one_line_exit_2_nothing_written(args, named, tmp_path, capsys):

@@ -200,6 +200,15 @@ def test_bad_robot_overrides_are_refused(tmp_path):
         jaxnav.make("RobotSimple-v0", backend="warp")
     with pytest.raises(ValueError, match="goal_radius=6"):
         jaxnav.make("RobotSimple-v0", goal_radius=6.0)
+    # sizes that would hang or exhaust memory are refused before any work
+    with pytest.raises(ValueError, match="speed=1e\\+30, dt=0.1: one control step"):
+        jaxnav.make("RobotSimple-v0", speed=1e30)
+    with pytest.raises(ValueError, match="num_layouts=100000, random_size=10: too many"):
+        jaxnav.make("RobotRandom-v0", num_layouts=100_000)
+    with pytest.raises(ValueError, match="maze_file=5: must be a path"):
+        jaxnav.make("RobotMaze-v0", maze_file=5)
+    with pytest.raises(ValueError, match="/dev/zero: larger than 1,000,000 bytes"):
+        jaxnav.make("RobotMaze-v0", maze_file="/dev/zero")
     bad = tmp_path / "bad.txt"
     bad.write_text("#..\n#.\n")
     with pytest.raises(ValueError, match=f"{bad}:2"):

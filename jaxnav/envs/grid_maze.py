@@ -90,6 +90,21 @@ class GridMazeConfig:
             v = getattr(self, name)
             if not _is_number(v) or not np.isfinite(v):
                 raise ValueError(f"{name}={v!r}: must be a finite number")
+        # the bank holds a BFS distance field (int16 per cell) for every goal of every layout
+        cells = self.size * self.size
+        layouts, goals = (
+            (self.num_layouts, self.goals_per_layout) if self.random_layouts else (1, cells)
+        )
+        gib = layouts * goals * cells * 2 / 2**30
+        if gib > MAX_BANK_GIB:
+            raise ValueError(
+                f"size={self.size}, num_layouts={self.num_layouts}, goals_per_layout="
+                f"{self.goals_per_layout}: the layout bank's distance fields would take "
+                f"{gib:.1f} GiB (at most {MAX_BANK_GIB})"
+            )
+
+
+MAX_BANK_GIB = 2
 
 
 def default_config() -> GridMazeConfig:

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 from typing import Any
 
 import jax
@@ -44,6 +45,8 @@ ACTION_NAMES = ("forward", "backward", "turn_left", "turn_right")
 MAZES = ("simple", "complex", "random", "file")
 BACKENDS = ("kinematic", "mjx")
 LASER_SCALE = 10.0 * math.sqrt(2.0)  # Table I: sensors normalized by their maximum variation
+MAX_BANK_CELLS = 4_000_000  # random mazes are generated in Python: about 25 s at this size
+MAX_STEP_CELLS = 100  # a control step may cross at most this many cells (bounds the sub-steps)
 NUM_LASERS = 7
 
 
@@ -101,6 +104,14 @@ class RobotConfig:
             raise ValueError(
                 f"maze_file={self.maze_file!r}: give a maze file exactly when maze='file'"
             )
+        if self.maze_file is not None and not isinstance(self.maze_file, (str, os.PathLike)):
+            raise ValueError(f"maze_file={self.maze_file!r}: must be a path")
+        if self.maze == "random" and self.num_layouts * self.random_size**2 > MAX_BANK_CELLS:
+            raise ValueError(
+                f"num_layouts={self.num_layouts}, random_size={self.random_size}: too many "
+                f"maze cells to generate ({self.num_layouts * self.random_size**2:,}; at most "
+                f"{MAX_BANK_CELLS:,})"
+            )
         for maze in self.load_mazes(validate_only=True):
             mazes.check_slots(maze, self.num_wall_slots)
             width, height = maze.size_m
@@ -113,6 +124,11 @@ class RobotConfig:
                 raise ValueError(
                     f"radius={self.radius}: the robot must fit in a {maze.cell_size:g} m cell "
                     f"of the {maze.name} maze (radius < {maze.cell_size / 2:g})"
+                )
+            if self.speed * self.dt > MAX_STEP_CELLS * maze.cell_size:
+                raise ValueError(
+                    f"speed={self.speed}, dt={self.dt}: one control step would cross more than "
+                    f"{MAX_STEP_CELLS} cells of the {maze.name} maze"
                 )
 
     def load_mazes(self, validate_only: bool = False) -> list[mazes.Maze]:

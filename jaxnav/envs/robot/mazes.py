@@ -391,6 +391,9 @@ def _walls_np(maze: Maze, num_slots: int) -> tuple[np.ndarray, np.ndarray, np.nd
 
 
 # -------------------------------------------------------------------------- text format
+MAX_FILE_BYTES = 1_000_000
+
+
 def load_maze(path: str | os.PathLike[str], num_slots: int | None = None) -> Maze:
     """Read a maze file (format in the module docstring); ``MazeFileError`` naming the file,
     line and column if it is unreadable or malformed, or (with ``num_slots``) if its walls do
@@ -398,9 +401,11 @@ def load_maze(path: str | os.PathLike[str], num_slots: int | None = None) -> Maz
     name = os.fspath(path)
     try:
         with open(name, "rb") as f:
-            data = f.read()
+            data = f.read(MAX_FILE_BYTES + 1)  # bounded: /dev/zero is not a maze
     except OSError as e:
         raise MazeFileError(name, f"cannot read the maze file: {e.strerror or e}") from e
+    if len(data) > MAX_FILE_BYTES:
+        raise MazeFileError(name, f"larger than {MAX_FILE_BYTES:,} bytes: not a maze file")
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError as e:
