@@ -153,10 +153,10 @@ def draw_episode(
             ax.plot([xy[s, 0], end[0]], [xy[s, 1], end[1]], color="orange", lw=0.8, zorder=2)
     goal_r = float(ep["goal_radius"])
     ax.add_patch(Circle(ep["goal"], goal_r, color="tab:red", alpha=0.25, lw=0))
-    ax.plot(*ep["goal"], marker="*", color="tab:red", ms=12, zorder=4, label="goal")
+    ax.plot(*ep["goal"], marker="*", color="tab:red", ms=12, zorder=7, label="goal")
     ax.plot(*xy[0], marker="o", color="tab:green", ms=8, zorder=4, label="start")
     ax.plot(xy[: t + 1, 0], xy[: t + 1, 1], color="tab:blue", lw=1.5, zorder=3, label="path")
-    ax.add_patch(Circle(xy[t], radius, color="tab:blue", zorder=5))
+    ax.add_patch(Circle(xy[t], radius, color="tab:blue", alpha=0.8, zorder=5))
     if ep["laser_angles"].size:  # heading tick
         tip = xy[t] + 2 * radius * np.array([np.cos(heading[t]), np.sin(heading[t])])
         ax.plot([xy[t, 0], tip[0]], [xy[t, 1], tip[1]], color="black", lw=1.5, zorder=6)
@@ -205,6 +205,7 @@ def save_gif(
     fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols, 3.4 * rows), squeeze=False)
     for ax in axes.ravel()[len(episodes) :]:
         ax.axis("off")
+    fig.tight_layout(rect=(0, 0, 1, 0.94 if title else 1))
 
     def update(t):
         for ax, ep in zip(axes.ravel(), episodes, strict=False):
