@@ -6,8 +6,9 @@ the random agent on the same fixed test episodes, write a results directory with
     python -m jaxnav.experiments plot DIR    # redraw the figures of a results directory
 
 Agents: ``dueling-double`` (the paper's model) and ``simple`` (plain DQN: dueling and double
-off), each trained on all seeds at once (one compiled ``jit(vmap(train))`` program per agent
-and training env), and ``random`` (a uniform action every step). Each test suite is a fixed
+off), each trained on all seeds at once (``vmap`` over seeds in one compiled program per agent
+and training env, called once per logging interval for progress lines: ``cli.train_seeds``),
+and ``random`` (a uniform action every step). Each test suite is a fixed
 list of (start, goal, layout) drawn once from ``SUITE_SEED`` and replayed with
 ``env.reset_to``, so every agent and seed meets the same episodes.
 
