@@ -85,3 +85,9 @@ def stepwise_trainer(tiny_config) -> Trainer:
     """The tiny config with one iteration (num_envs env steps) per logging interval."""
     cfg = dataclasses.replace(tiny_config, log_interval=tiny_config.num_envs, total_timesteps=60)
     return Trainer(cfg)
+
+
+@pytest.fixture(scope="session")
+def stepwise_run_one(stepwise_trainer):
+    """``jit(lambda ts, it: trainer.run(ts, it, 1))``: one iteration of the stepwise trainer."""
+    return jax.jit(lambda ts, it: stepwise_trainer.run(ts, it, 1))

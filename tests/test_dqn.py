@@ -304,11 +304,10 @@ def test_q_learning_probe_recovers_known_values():
 
 
 # ------------------------------------------------------------------------------ trainer
-def test_target_updates_exactly_when_env_steps_cross_the_period(stepwise_trainer):
-    trainer = stepwise_trainer
+def test_target_updates_exactly_when_env_steps_cross_the_period(stepwise_trainer, stepwise_run_one):
+    trainer, run_one = stepwise_trainer, stepwise_run_one
     c = trainer.config
     assert c.iterations_per_log == 1 and c.target_update_period % c.num_envs != 0
-    run_one = jax.jit(lambda ts, i: trainer.run(ts, i, 1))
     ts = jax.jit(trainer.init)(jax.random.key(0))
     period = c.target_update_period
     updated_at = []

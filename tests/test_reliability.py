@@ -214,21 +214,16 @@ def test_divergence_stops_within_an_interval_and_keeps_the_last_good_checkpoint(
     print(f"divergence demo: {err}")
 
 
-@pytest.fixture(scope="module")
-def one_iteration(stepwise_trainer):
-    return jax.jit(lambda ts, i: stepwise_trainer.run(ts, i, 1))
-
-
 @pytest.mark.parametrize("quantity", DIVERGENCE_QUANTITIES)
 def test_divergence_flag_names_the_first_bad_quantity_and_step(
-    quantity, stepwise_trainer, one_iteration
+    quantity, stepwise_trainer, stepwise_run_one
 ):
     trainer = stepwise_trainer
     c = trainer.config
     ts = jax.jit(trainer.init)(jax.random.key(0))
     first_learning = c.first_learning_iteration
     for it in range(first_learning):  # warm-up fills the replay buffer
-        ts, _ = one_iteration(ts, it)
+        ts, _ = stepwise_run_one(ts, it)
     assert int(ts.diverged) == 0
     nan = lambda tree: jax.tree.map(lambda x: jnp.full_like(x, jnp.nan), tree)  # noqa: E731
     if quantity == "q_values":  # what the network sees
@@ -237,9 +232,9 @@ def test_divergence_flag_names_the_first_bad_quantity_and_step(
         ts = ts.replace(buffer=ts.buffer.replace(reward=nan(ts.buffer.reward)))
     else:  # an infinite step size: loss and Q-values finite, the updated parameters not
         ts = ts.replace(hparams=ts.hparams.replace(lr=jnp.float32(jnp.inf)))
-    ts, _ = one_iteration(ts, first_learning)  # a learning iteration
+    ts, _ = stepwise_run_one(ts, first_learning)  # a learning iteration
     assert DIVERGENCE_QUANTITIES[int(ts.diverged) - 1] == quantity
     assert int(ts.diverged_at) == (first_learning + 1) * c.num_envs
-    later, _ = one_iteration(ts, first_learning + 1)
+    later, _ = stepwise_run_one(ts, first_learning + 1)
     assert int(later.diverged) == int(ts.diverged)  # the first one stays
     assert int(later.diverged_at) == int(ts.diverged_at)
