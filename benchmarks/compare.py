@@ -141,7 +141,7 @@ def plot(rows: list[dict[str, Any]], out: Path, title: str) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(8, 5))
+    fig, ax = plt.subplots(figsize=(10, 5))
     for env in dict.fromkeys(r["env"] for r in rows):
         pts = sorted((r["num_envs"], r["steps_per_s"]) for r in rows if r["env"] == env)
         peer = env in env_throughput.PEER_ENVS
@@ -151,7 +151,7 @@ def plot(rows: list[dict[str, Any]], out: Path, title: str) -> None:
     ax.set(xscale="log", yscale="log", xlabel="parallel envs", ylabel="env steps / s")
     ax.set_title(title, fontsize=9)
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=8, loc="center left", bbox_to_anchor=(1.01, 0.5))
     fig.tight_layout()
     fig.savefig(out, dpi=120)
     plt.close(fig)
