@@ -183,9 +183,10 @@ def test_resume_before_any_checkpoint_starts_over_with_the_saved_settings(tmp_pa
 
 # ------------------------------------------------------------------ divergence guard
 UNSTABLE = [
-    *TINY,
+    *(a for a in TINY if a != "--quiet"),  # progress lines show where it stopped
     "--hidden-sizes", "16,16",
     "--total-timesteps", "320",
+    "--checkpoint-every", "32",
     "--optimizer", "sgd",
     "--lr", "10",
     "--lr-end", "10",
@@ -193,21 +194,23 @@ UNSTABLE = [
     "--gamma", "1.0",
     "--loss", "mse",
     "--eval-episodes", "5",
-    "--quiet",
 ]  # fmt: skip
 
 
 def test_divergence_stops_within_an_interval_and_keeps_the_last_good_checkpoint(tmp_path, capsys):
     out = tmp_path / "run"
     assert train_main([*UNSTABLE, "--out", str(out)]) == 3
-    err = capsys.readouterr().err.strip()
+    stdout, err = capsys.readouterr()
+    err = err.strip()
     assert err.count("\n") == 0 and err.startswith("jaxnav.train: diverged: seed 0: ")
     quantity = err.split("seed 0: ")[1].split(" became")[0]
     assert quantity in DIVERGENCE_QUANTITIES
     bad_step = int(err.split("at env step ")[1].split(";")[0].replace(",", ""))
     good_step = int(err.split("checkpoint (env step ")[1].split(")")[0].replace(",", ""))
-    assert good_step < bad_step <= good_step + 32  # stopped in the interval after it
+    assert good_step < bad_step <= good_step + 32  # the checkpoint before the bad interval
     assert checkpoint_steps(out)[-1] * 32 == good_step
+    last_progress = re.findall(r"steps +([\d,]+)/", stdout)[-1]
+    assert int(last_progress.replace(",", "")) == good_step + 32  # stopped after that interval
     rows = (run_dir.partial_dir(out) / "metrics.csv").read_text().splitlines()
     assert rows[-1].split(",")[1] == str(good_step)
     assert not out.exists()
