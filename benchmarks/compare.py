@@ -16,7 +16,8 @@ Sections (each can be left out with ``--sections``):
   with one agent. A PNG plots steps/s against num_envs.
 - ``train``: our DQN against rejax's on GridMaze-v0 with the same network, batch, replay ratio
   and steps (``benchmarks.train_vs_rejax``): wall time, the ratio, time to a greedy success
-  threshold, compile time apart.
+  threshold, compile time apart. The config is the CLI's default (the paper's grid
+  experiment) with ``--train-config`` overrides, a JSON object of ``TrainConfig`` fields.
 - ``compile``: every CLI entry point started twice, with an empty and then a filled persistent
   compilation cache (``benchmarks.compile_time``).
 
