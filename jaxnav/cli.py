@@ -29,7 +29,7 @@ from jaxnav import run_dir
 from jaxnav.checkpoints import Checkpoints
 from jaxnav.config import MAX_STEPS, TrainConfig
 from jaxnav.evaluate import evaluate_seeds, mean_of
-from jaxnav.registration import registered_envs
+from jaxnav.registration import registered_envs, train_defaults
 from jaxnav.train import DIVERGENCE_QUANTITIES, METRIC_NAMES, Trainer
 
 EXIT_DIVERGED = 3
@@ -109,15 +109,41 @@ def _add_env_args(p: argparse.ArgumentParser) -> None:
         metavar="KEY=VALUE",
         help="environment override, repeatable (e.g. size=11, obs_mode=paper)",
     )
+    p.add_argument(
+        "--maze-file",
+        type=Path,
+        metavar="PATH",
+        help="your own maze as a text file (README: Mazes); the env id defaults to RobotMaze-v0",
+    )
+
+
+def env_from_args(args: argparse.Namespace, env: str | None) -> tuple[str | None, dict[str, Any]]:
+    """``(env id, env overrides)`` from ``--env-arg`` and ``--maze-file`` (which implies
+    RobotMaze-v0 unless an id is given)."""
+    env_kwargs = dict(args.env_arg or [])
+    if getattr(args, "maze_file", None) is not None:
+        env_kwargs["maze_file"] = str(args.maze_file)
+        env = env or "RobotMaze-v0"
+    return env, env_kwargs
+
+
+class _DefaultsShown(argparse.ArgumentDefaultsHelpFormatter):
+    """Shows defaults, except None ones (training flags spell out their env-dependent default)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        if action.default is None:
+            return action.help
+        return super()._get_help_string(action)
 
 
 def train_parser() -> argparse.ArgumentParser:
     p = _Parser(
         prog="python -m jaxnav.train",
         description="Train a (dueling, double) DQN; all seeds and the whole run are one program.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=_DefaultsShown,
     )
     defaults = TrainConfig()
+    env_defaults = {"robot envs": train_defaults("RobotSimple-v0")}
     for f in dataclasses.fields(TrainConfig):
         if f.name == "env_kwargs":
             continue
@@ -129,7 +155,12 @@ def train_parser() -> argparse.ArgumentParser:
             kind, meta, default = _int_list, "W,W,...", ",".join(map(str, default))
         else:
             kind, meta = type(default), None
-        p.add_argument(flag, type=kind, default=default, metavar=meta, help=HELP.get(f.name))
+        shown = f"default: {default}" + "".join(
+            f"; {env}: {tuned[f.name]}" for env, tuned in env_defaults.items() if f.name in tuned
+        )
+        # None = not given: the env's tuned default (TrainConfig.for_env) fills it in
+        help_text = f"{HELP[f.name]} ({shown})" if f.name in HELP else f"({shown})"
+        p.add_argument(flag, type=kind, default=None, metavar=meta, help=help_text)
     _add_env_args(p)
     p.add_argument("--out", type=Path, help="run directory (default: runs/<env>-<time>)")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
@@ -155,13 +186,14 @@ def train_parser() -> argparse.ArgumentParser:
 
 
 def config_from_args(args: argparse.Namespace) -> TrainConfig:
+    """The flags given (not None) over the env's tuned defaults over TrainConfig's."""
     values = {}
     for f in dataclasses.fields(TrainConfig):
-        if f.name != "env_kwargs":
-            v = getattr(args, f.name)
+        v = getattr(args, f.name, None)
+        if f.name != "env_kwargs" and v is not None:
             values[f.name] = _int_list(v) if f.name == "hidden_sizes" and isinstance(v, str) else v
-    values["env_kwargs"] = dict(args.env_arg)
-    return TrainConfig(**values)
+    env, values["env_kwargs"] = env_from_args(args, values.pop("env", None))
+    return TrainConfig.for_env(env or "GridMaze-v0", **values)
 
 
 class Progress:
@@ -375,25 +407,43 @@ def train_main(argv: Sequence[str] | None = None) -> int:
     )
     restore_signal_handlers = _stop_on_signals(saving.signals)
     try:
-        state, metrics, compile_s, train_s = train_seeds(
-            trainer, run_dir.seed_keys(config), progress, saving
-        )
-    except Interrupted as e:
-        name = signal.Signals(saving.signals[0]).name
-        print(
-            f"{prog}: stopped by {name} at env step {e.args[0]:,} (checkpoint saved); "
-            f"continue with: {resume}",
-            file=sys.stderr,
-        )
-        return 128 + saving.signals[0]
-    except Diverged as e:
-        print(f"{prog}: diverged: {e}", file=sys.stderr)
-        return EXIT_DIVERGED
-    except ValueError as e:  # a checkpoint that does not restore
-        return _fail(prog, str(e))
+        try:
+            state, metrics, compile_s, train_s = train_seeds(
+                trainer, run_dir.seed_keys(config), progress, saving
+            )
+        except Interrupted as e:
+            name = signal.Signals(saving.signals[0]).name
+            print(
+                f"{prog}: stopped by {name} at env step {e.args[0]:,} (checkpoint saved); "
+                f"continue with: {resume}",
+                file=sys.stderr,
+            )
+            return 128 + saving.signals[0]
+        except Diverged as e:
+            print(f"{prog}: diverged: {e}", file=sys.stderr)
+            return EXIT_DIVERGED
+        except ValueError as e:  # a checkpoint that does not restore
+            return _fail(prog, str(e))
+        # a signal from here on is let be: the trained run is complete in seconds
+        finish_run(trainer, state, metrics, progress, partial, out, (compile_s, train_s, t_start))
     finally:
         restore_signal_handlers()
+    return 0
 
+
+def finish_run(
+    trainer: Trainer,
+    state: Any,
+    metrics: dict[str, np.ndarray],
+    progress: Progress,
+    partial: Path,
+    out: Path,
+    times: tuple[float, float, float],
+) -> None:
+    """Evaluate the trained seeds, complete the run in ``partial`` and rename it to ``out``;
+    ``times`` are the compile and train seconds and the run's start (``perf_counter``)."""
+    config = trainer.config
+    compile_s, train_s, t_start = times
     # wall-clock timing apart from metrics.csv, which is bitwise reproducible
     sps = progress.steps_per_second(metrics["env_steps"][0])
     shape = metrics["env_steps"].shape
@@ -432,7 +482,6 @@ def train_main(argv: Sequence[str] | None = None) -> int:
         f"compile {compile_s:.1f}s, train {train_s:.1f}s, eval {eval_s:.1f}s, "
         f"total {summary['wall_s']:.1f}s; run saved to {out}"
     )
-    return 0
 
 
 def resumable_run(args: argparse.Namespace, argv: list[str]) -> tuple[Path, Path, TrainConfig]:
@@ -540,8 +589,9 @@ def evaluate_main(argv: Sequence[str] | None = None) -> int:
         if args.seed < 0:
             raise ValueError(f"--seed {args.seed}: must be non-negative")
         config = run_dir.load_config(args.run)
-        env_kwargs = {**(config.env_kwargs if args.env is None else {}), **dict(args.env_arg)}
-        config = dataclasses.replace(config, env=args.env or config.env, env_kwargs=env_kwargs)
+        env, overrides = env_from_args(args, args.env)
+        env_kwargs = {**(config.env_kwargs if env is None else {}), **overrides}
+        config = dataclasses.replace(config, env=env or config.env, env_kwargs=env_kwargs)
         config.validate()
         trainer = Trainer(config)
         want = (run_dir.load_network(args.run)["obs_size"],)

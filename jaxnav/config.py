@@ -6,7 +6,7 @@ import dataclasses
 import math
 from typing import Any
 
-from jaxnav.registration import env_config
+from jaxnav.registration import env_config, train_defaults
 
 # step counters are int32 inside the compiled loop; keep a margin below 2^31
 MAX_STEPS = 2_000_000_000
@@ -50,6 +50,12 @@ class TrainConfig:
     # bookkeeping
     log_interval: int = 16_000
     eval_episodes: int = 1000
+
+    @classmethod
+    def for_env(cls, env: str = "GridMaze-v0", **overrides: Any) -> TrainConfig:
+        """The config for ``env`` with that env's tuned defaults (``train_defaults``; e.g. the
+        robot envs train longer with 3-step returns), then ``overrides``."""
+        return cls(env=env, **{**train_defaults(env), **overrides})
 
     @property
     def iterations(self) -> int:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import sys
 from collections.abc import Callable
 from typing import Any
 
@@ -23,6 +24,15 @@ _REGISTRY: dict[str, tuple[Callable[..., Environment], Callable[[], Any], dict[s
     "RobotRandom-v0": (robot.RobotNav, robot.default_config, {"maze": "random"}),
     "RobotMaze-v0": (robot.RobotNav, robot.default_config, {"maze": "file"}),
 }
+
+
+def train_defaults(env_id: str) -> dict[str, Any]:
+    """TrainConfig values tuned for ``env_id`` (its module's ``TRAIN_DEFAULTS``); fields not
+    listed keep TrainConfig's defaults, which are tuned for the grid."""
+    if env_id not in _REGISTRY:
+        raise ValueError(f"unknown env id {env_id!r}; valid ids: {', '.join(registered_envs())}")
+    module = sys.modules[_REGISTRY[env_id][0].__module__]
+    return dict(getattr(module, "TRAIN_DEFAULTS", {}))
 
 
 def registered_envs() -> list[str]:

@@ -23,8 +23,12 @@ KEY = jax.random.key(0)
 
 @pytest.fixture(scope="module")
 def simple():
-    env, params = jaxnav.make("RobotSimple-v0")
+    env, params = jaxnav.make("RobotSimple-v0", backend="kinematic")
     return env, params, jax.jit(env.step), jax.jit(env.step_env)
+
+
+def terms(info) -> float:
+    return sum(float(info[k]) for k in info if k.startswith("reward_"))
 
 
 def start(env, params, x, y, heading, goal=(8.5, 8.5)):
@@ -36,7 +40,7 @@ def test_forward_moves_along_heading_and_turns_only_change_yaw(simple):
     c = env.config
     heading = 0.3
     _, s = start(env, params, 2.5, 1.5, heading)
-    _, s1, r, term, _ = step_env(KEY, s, FORWARD, params)
+    _, s1, r, term, info = step_env(KEY, s, FORWARD, params)
     moved = np.asarray(s1.pose[:2] - s.pose[:2])
     np.testing.assert_allclose(
         moved, c.speed * c.dt * np.array([math.cos(heading), math.sin(heading)]), atol=1e-5
@@ -48,9 +52,11 @@ def test_forward_moves_along_heading_and_turns_only_change_yaw(simple):
     assert float(s3.pose[2] - s.pose[2]) == pytest.approx(-c.turn_speed * c.dt, abs=1e-5)
     assert not bool(term)
     # the step reward starts at -0.5 and falls towards -1 with the step count
-    assert float(r) == pytest.approx(c.step_reward_start)
+    assert float(info["reward_step"]) == pytest.approx(c.step_reward_start)
+    assert float(r) == pytest.approx(terms(info))
     late = s.replace(time=jnp.asarray(c.max_steps - 1))
-    _, _, r_late, _, _ = step_env(KEY, late, LEFT, params)
+    _, _, r_late, _, info = step_env(KEY, late, LEFT, params)
+    assert float(info["reward_progress"]) == 0.0  # turning in place makes no progress
     assert c.step_reward_end <= float(r_late) < -0.99
 
 
@@ -72,8 +78,35 @@ def test_goal_reward_terminates(simple):
     env, params, _, step_env = simple
     _, s = start(env, params, 2.5, 1.5, 0.0, goal=(3.0, 1.5))
     _, _, r, term, info = step_env(KEY, s, FORWARD, params)
-    assert bool(term) and bool(info["goal_reached"]) and float(r) == 10.0
-    assert float(info["reward_goal"] + info["reward_collision"] + info["reward_step"]) == 10.0
+    assert bool(term) and bool(info["goal_reached"]) and float(r) == 10.0  # same cell: no progress
+    assert terms(info) == 10.0 and float(info["reward_goal"]) == 10.0
+
+
+def test_progress_reward_follows_the_geodesic_distance(simple):
+    """The progress term pays per metre of BFS distance through free cells (not straight-line
+    distance): it equals a numpy BFS on the maze's grid, and crossing a cell boundary towards the
+    goal pays ``progress_reward`` x cell size."""
+    env, params, _, step_env = simple
+    maze = jaxnav.envs.robot.mazes.builtin_maze("simple")
+    rng = np.random.default_rng(0)
+    free = maze.free_cells()
+    for _ in range(20):
+        (r0, c0), (r1, c1) = free[rng.choice(len(free), 2, replace=False)]
+        xy = maze.cell_center(r0, c0) + rng.uniform(-0.45, 0.45, 2) * maze.cell_size
+        goal = np.array(maze.cell_center(r1, c1))
+        want = maze.bfs_distances((r1, c1))[maze.cell_at(*xy)] * maze.cell_size
+        got = env.goal_distance(jnp.array([*xy, 0.0]), jnp.array(goal), 0, params)
+        assert float(got) == pytest.approx(want)
+    # goal (8.5, 5.5) lies beyond the lower wall, whose gap is at x < 3: stepping left from
+    # x = 3.05 to 2.8 moves away in a straight line but one cell closer along the free cells
+    c = env.config
+    _, s = start(env, params, 3.05, 1.5, math.pi, goal=(8.5, 5.5))
+    _, _, r, _, info = step_env(KEY, s, FORWARD, params)
+    assert float(info["reward_progress"]) == pytest.approx(c.progress_reward * maze.cell_size)
+    assert float(r) == pytest.approx(terms(info))
+    _, s = start(env, params, 2.95, 1.5, 0.0, goal=(8.5, 5.5))
+    _, _, _, _, info = step_env(KEY, s, FORWARD, params)
+    assert float(info["reward_progress"]) == pytest.approx(-c.progress_reward * maze.cell_size)
 
 
 def test_frames_stack_oldest_first_and_lasers_normalized(simple):
@@ -181,7 +214,12 @@ def test_rollout_invariants(env_id, backend, seed):
         np.asarray(time_before) / SHORT_LIMIT
     )
     want = np.where(goal, c.goal_reward, np.where(hit, c.collision_reward, step_reward))
-    np.testing.assert_allclose(r, want, rtol=1e-6)
+    # plus the progress term: whole cells of BFS distance gained (a step crosses at most two
+    # cell boundaries, at a corner), times progress_reward x cell size
+    progress = np.asarray(info["reward_progress"]) / (c.progress_reward * params.bank.cell_size)
+    np.testing.assert_allclose(progress, np.round(progress), atol=1e-5)
+    assert np.abs(progress).max() <= 2 and np.abs(progress).max() >= 1
+    np.testing.assert_allclose(r, want + np.asarray(info["reward_progress"]), rtol=1e-5, atol=1e-5)
     # episodes end by the limit: truncated exactly at its last step, never later
     assert (np.asarray(time_before) < SHORT_LIMIT).all()
     np.testing.assert_array_equal(
@@ -220,8 +258,11 @@ def test_bad_robot_overrides_are_refused(tmp_path):
 
 
 def test_mjx_backend_agrees_with_kinematic_in_free_space_and_collides():
-    kin, kp = jaxnav.make("RobotSimple-v0")
-    mjx_env, mp = jaxnav.make("RobotSimple-v0", backend="mjx")
+    # the clearances below are in 0.1 m steps; physics only, so no progress term (whose cell
+    # boundaries at x, y = 5.0 would make a 1e-4 m difference change the reward)
+    slow = {"speed": 1.0, "turn_speed": 2.0, "progress_reward": 0.0}
+    kin, kp = jaxnav.make("RobotSimple-v0", backend="kinematic", **slow)
+    mjx_env, mp = jaxnav.make("RobotSimple-v0", backend="mjx", **slow)
     actions = jnp.array([FORWARD, FORWARD, LEFT, FORWARD, RIGHT, RIGHT, FORWARD, BACKWARD] * 3)
 
     def rollout(env, params, pose):

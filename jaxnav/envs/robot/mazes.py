@@ -51,6 +51,8 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from jaxnav.envs.grid_maze import distance_field  # one BFS for both envs
+
 WALL, FREE, START, GOAL = "#", ".", "S", "G"
 CELL_CHARS = (WALL, FREE, START, GOAL)
 NUM_BOUNDARY = 4
@@ -111,6 +113,9 @@ class MazeBank:
     has_start: jax.Array  # bool[B]
     goal_xy: jax.Array  # float32[B, 2] the G cell's centre (free_xy[:, 0] when none)
     has_goal: jax.Array  # bool[B]
+    # int16[B, rows * cols, rows, cols]: 4-neighbour steps from each cell (the goal's, flattened)
+    # to every cell, -1 at walls and unreachable; precomputed so a reset costs no BFS
+    goal_distance: jax.Array
     cell_size: float = struct.field(pytree_node=False, default=1.0)
 
     @property
@@ -720,5 +725,15 @@ def stack_mazes(mazes: Sequence[Maze], num_slots: int) -> MazeBank:
         has_start=jnp.asarray(has_start),
         goal_xy=jnp.asarray(goal_xy),
         has_goal=jnp.asarray(has_goal),
+        goal_distance=_all_pairs_distances(jnp.asarray(np.stack([m.grid for m in mazes]))),
         cell_size=m0.cell_size,
     )
+
+
+@jax.jit
+def _all_pairs_distances(grids: jax.Array) -> jax.Array:
+    """int16[B, rows * cols, rows, cols] BFS steps from every cell of every maze."""
+    rows, cols = grids.shape[1:]
+    sources = jnp.stack(jnp.divmod(jnp.arange(rows * cols), cols), axis=-1)
+    per_maze = jax.vmap(distance_field, in_axes=(None, 0))
+    return jax.vmap(per_maze, in_axes=(0, None))(grids, sources).astype(jnp.int16)
