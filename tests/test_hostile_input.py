@@ -94,7 +94,7 @@ flag_and_value = st.one_of(
         st.just("--env-arg"),
         st.one_of(st.tuples(st.sampled_from(ENV_KEYS), env_value).map("=".join), junk),
     ),
-    st.tuples(st.sampled_from(["--bogus", "--resume", "-x", "--seed="]), junk),
+    st.tuples(st.sampled_from(["--bogus", "--resume", "--maze-file", "-x", "--seed="]), junk),
 )
 
 

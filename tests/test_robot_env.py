@@ -198,7 +198,7 @@ def test_rollout_invariants(env_id, backend, seed):
     """Random play: obs finite, lasers in [0, 1], rewards only +10, -5 or the step reward of
     that step, terminated exactly at goal or collision, episodes end by the step limit, the
     robot never inside a wall: not at all on the kinematic backend, and by at most one
-    physics substep of travel (speed x timestep, 2 cm) on MJX, which detects contact after it."""
+    physics substep of travel (speed x timestep) on MJX, which detects contact after it."""
     env, params, rollout = rollout_fn(env_id, backend)
     obs, r, term, trunc, info, time_before, pen_after = rollout(jax.random.key(seed))
     c = env.config
