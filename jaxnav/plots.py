@@ -140,9 +140,8 @@ def outcomes(results: dict[str, Any]) -> Any:
         ax.axis("off")
     fig.suptitle(f"Test outcomes, mean and 95% CI over {len(results['seeds'])} seeds", fontsize=11)
     handles, labels = axes[0, 0].get_legend_handles_labels()
-    top = 1 - 0.1 / rows
-    fig.legend(handles, labels, loc="upper center", ncol=3, bbox_to_anchor=(0.5, top + 0.04))
-    fig.tight_layout(rect=(0, 0, 1, top))
+    fig.legend(handles, labels, loc="lower center", ncol=len(labels), fontsize=8)
+    fig.tight_layout(rect=(0, 0.1 / rows, 1, 1 - 0.06 / rows))
     return fig
 
 
