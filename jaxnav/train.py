@@ -36,9 +36,11 @@ METRIC_NAMES = (
     "lr",
 )
 
-# What the divergence guard watches, in the order an iteration computes them (Q-values of the
-# acting step, the TD loss, the parameters after the update): in the first iteration where any
-# is NaN or Inf, ``TrainState.diverged`` becomes 1 + the index of the first such (0 before).
+# What the divergence guard watches: the acting step's Q-values and the TD loss every
+# iteration, the parameters at the end of every logging interval (not every iteration: that
+# would read every parameter once more per update; non-finite parameters show in the next
+# iteration's Q-values anyway). ``TrainState.diverged`` becomes 1 + the index of the first
+# non-finite one.
 DIVERGENCE_QUANTITIES = ("q_values", "loss", "params")
 
 
@@ -75,7 +77,7 @@ class TrainState:
     hparams: HParams
     # divergence guard: set once, at the first iteration where a watched quantity is NaN/Inf
     diverged: jax.Array  # int32, see DIVERGENCE_QUANTITIES
-    diverged_at: jax.Array  # int32, env steps at the end of that iteration (0 if not diverged)
+    diverged_at: jax.Array  # int32, env steps when it was seen (0 if not diverged)
 
 
 class Trainer:
@@ -237,7 +239,10 @@ class Trainer:
             lambda ts: ts,
             ts,
         )
-        ts = self._check_divergence(ts, q, aux, env_steps + c.num_envs)
+        q_finite = jnp.isfinite(q).all() & jnp.isfinite(aux["q_mean"]) & jnp.isfinite(aux["q_max"])
+        ts = self._flag_divergence(
+            ts, [q_finite, jnp.isfinite(aux["loss"])], env_steps + c.num_envs
+        )
         stats |= {
             "loss_sum": aux["loss"] * aux["updated"],
             "q_sum": aux["q_mean"] * aux["updated"],
@@ -245,20 +250,15 @@ class Trainer:
         }
         return ts, stats
 
-    def _check_divergence(
-        self, ts: TrainState, q: jax.Array, aux: dict, env_steps: jax.Array
+    def _flag_divergence(
+        self, ts: TrainState, finite: list[jax.Array], env_steps: jax.Array, first_code: int = 1
     ) -> TrainState:
-        """Record the first iteration with a non-finite parameter, Q-value or loss. The run
-        keeps computing (a flag costs nothing under vmap; a skipped update would not); the
-        caller stops after the interval and keeps its last checkpoint from before it."""
-        finite = jnp.stack(
-            [
-                jnp.isfinite(q).all() & jnp.isfinite(aux["q_mean"]) & jnp.isfinite(aux["q_max"]),
-                jnp.isfinite(aux["loss"]),
-                jnp.stack([jnp.isfinite(x).all() for x in jax.tree.leaves(ts.params)]).all(),
-            ]
-        )
-        code = jnp.where(finite.all(), 0, jnp.argmin(finite) + 1).astype(jnp.int32)
+        """Record the first non-finite quantity: ``finite[i]`` is DIVERGENCE_QUANTITIES[
+        first_code - 1 + i]. The run keeps computing (a flag costs nothing under vmap; a
+        skipped update would not); the caller stops after the interval and keeps its last
+        checkpoint from before it."""
+        finite = jnp.stack(finite)
+        code = jnp.where(finite.all(), 0, jnp.argmin(finite) + first_code).astype(jnp.int32)
         first = (ts.diverged == 0) & (code > 0)
         return ts.replace(
             diverged=jnp.where(first, code, ts.diverged),
@@ -274,6 +274,13 @@ class Trainer:
         episodes = jnp.maximum(s["episodes"], 1)
         updated = jnp.maximum(s["updated"], 1)
         env_steps = (first + c.iterations_per_log) * c.num_envs
+        params_finite = jnp.stack([jnp.isfinite(x).all() for x in jax.tree.leaves(ts.params)])
+        ts = self._flag_divergence(
+            ts,
+            [params_finite.all()],
+            env_steps,
+            first_code=DIVERGENCE_QUANTITIES.index("params") + 1,
+        )
         updates_done = jnp.maximum(0, its[-1] + 1 - c.first_learning_iteration)
         metrics = {
             "env_steps": env_steps,
