@@ -14,6 +14,11 @@ as a full run's, since the CLI compiles one logging interval and calls it repeat
 ``jaxnav.evaluate`` (one compiled program that plays all episodes), "first step s" is the
 wall time of the whole command. ``import`` is ``python -c "import jaxnav.cli"``: the floor
 under every start-up time.
+
+Each run also records where JAX spent its compile time (``jax.monitoring`` durations, summed
+over every program of the process, evaluation included): tracing to a jaxpr, lowering to
+StableHLO (both happen on every run: the persistent cache is keyed by the lowered program),
+and XLA compilation or loading from the cache; plus the number of persistent-cache hits.
 """
 
 from __future__ import annotations
@@ -30,7 +35,15 @@ from typing import Any
 
 from benchmarks.common import machine_info, write_results
 
+ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_OUT = Path("benchmarks/results/compile_time.json")
+PHASES = {
+    "trace_s": "/jax/core/compile/jaxpr_trace_duration",
+    "lower_s": "/jax/core/compile/jaxpr_to_mlir_module_duration",
+    "compile_or_load_s": "/jax/core/compile/backend_compile_duration",
+}
+CACHE_HIT = "/jax/compilation_cache/cache_hits"
+RECORD = "--record-phases"  # internal: run a CLI entry point in-process, recording PHASES
 TRAIN_ENTRIES = {
     "grid": ["--env", "GridMaze-v0"],
     "robot-kinematic": ["--env", "RobotSimple-v0", "--env-arg", "backend=kinematic"],
@@ -39,6 +52,31 @@ TRAIN_ENTRIES = {
 ENTRIES = (*TRAIN_ENTRIES, "evaluate")
 TARGETS = {"grid": 10.0, "robot-kinematic": 30.0, "robot-mjx": 30.0}  # first-run compile s
 SECOND_RUN_TARGET_S = 3.0
+
+
+def run_recording_phases(out: Path, entry: str, argv: list[str]) -> int:
+    """Run ``jaxnav.cli``'s ``entry`` (train or evaluate) in this process; write JAX's compile
+    phase durations and the persistent-cache hits to ``out`` (JSON)."""
+    import jax
+
+    from jaxnav import cli
+
+    totals = dict.fromkeys([*PHASES, "cache_hits"], 0.0)
+    names = {event: key for key, event in PHASES.items()}
+
+    def on_duration(event: str, secs: float, **_: Any) -> None:
+        if event in names:
+            totals[names[event]] += secs
+
+    def on_event(event: str, **_: Any) -> None:
+        totals["cache_hits"] += event == CACHE_HIT
+
+    jax.monitoring.register_event_duration_secs_listener(on_duration)
+    jax.monitoring.register_event_listener(on_event)
+    try:
+        return {"train": cli.train_main, "evaluate": cli.evaluate_main}[entry](argv)
+    finally:
+        out.write_text(json.dumps(totals))
 
 
 def timed_command(argv: list[str], cache_dir: Path, marker: str | None) -> dict[str, Any]:
@@ -52,6 +90,7 @@ def timed_command(argv: list[str], cache_dir: Path, marker: str | None) -> dict[
         stderr=subprocess.STDOUT,
         text=True,
         env=env,
+        cwd=ROOT,  # where `python -m benchmarks...` finds the package
     )
     marked, lines = None, []
     assert proc.stdout is not None
@@ -70,17 +109,22 @@ def measure_train(name: str, flags: list[str], work: Path) -> dict[str, Any]:
     cache = work / f"cache-{name}"
     runs = []
     for i in (1, 2):
-        out = work / f"{name}-{i}"
-        run = timed_command(["-m", "jaxnav.train", *flags, "--out", str(out)], cache, "compiled in")
+        out, phases = work / f"{name}-{i}", work / f"{name}-{i}-phases.json"
+        argv = ["-m", "benchmarks.compile_time", RECORD, str(phases), "train"]
+        run = timed_command([*argv, *flags, "--out", str(out)], cache, "compiled in")
         run["compile_s"] = json.loads((out / "summary.json").read_text())["compile_s"]
+        run["phases"] = json.loads(phases.read_text())
         runs.append(run)
     return {"entry": name, "command": "python -m jaxnav.train " + " ".join(flags)} | _runs(runs)
 
 
 def measure_evaluate(run_dir: Path, work: Path) -> dict[str, Any]:
-    cache = work / "cache-evaluate"
-    argv = ["-m", "jaxnav.evaluate", str(run_dir), "--episodes", "1000"]
-    runs = [timed_command(argv, cache, None) for _ in (1, 2)]
+    cache, phases = work / "cache-evaluate", work / "evaluate-phases.json"
+    argv = ["-m", "benchmarks.compile_time", RECORD, str(phases), "evaluate", str(run_dir)]
+    runs = []
+    for _ in (1, 2):
+        runs.append(timed_command([*argv, "--episodes", "1000"], cache, None))
+        runs[-1]["phases"] = json.loads(phases.read_text())
     return {"entry": "evaluate", "command": "python -m jaxnav.evaluate RUN"} | _runs(runs)
 
 
@@ -93,11 +137,22 @@ def measure_import(work: Path) -> dict[str, Any]:
     return {"entry": "import", "command": 'python -c "import jaxnav.cli"', "first_run": run}
 
 
+def phases(run: dict[str, Any] | None) -> str:
+    """``trace + lower + compile-or-load`` seconds and cache hits of one run, for the table."""
+    if run is None or "phases" not in run:
+        return "-"
+    p = run["phases"]
+    return (
+        f"{p['trace_s']:.1f} + {p['lower_s']:.1f} + {p['compile_or_load_s']:.1f} "
+        f"({p['cache_hits']:.0f} hits)"
+    )
+
+
 def table(rows: list[dict[str, Any]]) -> str:
     lines = [
         "| entry point | first run: first step s | compile s | second run: first step s "
-        "| compile s | target |",
-        "|---|---:|---:|---:|---:|---|",
+        "| compile s | JAX trace + lower + compile/load s, first / second run | target |",
+        "|---|---:|---:|---:|---:|---|---|",
     ]
     for r in rows:
         one, two = r["first_run"], r.get("second_run")
@@ -109,7 +164,8 @@ def table(rows: list[dict[str, Any]]) -> str:
         )
         lines.append(
             f"| `{r['command']}` | {cell(one, 'first_step_s')} | {cell(one, 'compile_s')} | "
-            f"{cell(two, 'first_step_s')} | {cell(two, 'compile_s')} | {target} |"
+            f"{cell(two, 'first_step_s')} | {cell(two, 'compile_s')} | "
+            f"{phases(one)} / {phases(two)} | {target} |"
         )
     return "\n".join(lines)
 
@@ -144,7 +200,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     return args
 
 
-def main(argv: list[str] | None = None) -> dict[str, Any]:
+def main(argv: list[str] | None = None) -> dict[str, Any] | int:
+    argv = sys.argv[1:] if argv is None else argv
+    if argv[:1] == [RECORD]:
+        return run_recording_phases(Path(argv[1]), argv[2], argv[3:])
     args = parse_args(argv)
     info = machine_info()
     rows = measure(args.entries, args.total_timesteps)
@@ -156,4 +215,5 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
 
 
 if __name__ == "__main__":
-    main()
+    result = main()
+    sys.exit(result if isinstance(result, int) else 0)
