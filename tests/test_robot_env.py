@@ -226,7 +226,7 @@ def test_rollout_invariants(env_id, backend, seed):
         np.asarray(trunc), (np.asarray(time_before) == SHORT_LIMIT - 1) & ~np.asarray(term)
     )
     assert np.asarray(trunc).any()
-    bound = 0.0 if backend == "kinematic" else c.speed * c.dt / 5  # MJX: 5 substeps a step
+    bound = 0.0 if backend == "kinematic" else c.speed * c.dt / c.mjx_substeps
     assert float(np.max(info["penetration"])) <= bound + 1e-6
     assert float(np.max(pen_after)) <= bound + 1e-6  # every state the env hands out
 
@@ -240,7 +240,9 @@ def test_bad_robot_overrides_are_refused(tmp_path):
         jaxnav.make("RobotSimple-v0", goal_radius=6.0)
     # sizes that would hang or exhaust memory are refused before any work
     with pytest.raises(ValueError, match="speed=1e\\+30, dt=0.1: one control step"):
-        jaxnav.make("RobotSimple-v0", speed=1e30)
+        jaxnav.make("RobotSimple-v0", speed=1e30, backend="kinematic")
+    with pytest.raises(ValueError, match="mjx_substeps=2: a physics substep would move"):
+        jaxnav.make("RobotSimple-v0", speed=4.0)  # 0.2 m a substep > the 0.15 m radius
     with pytest.raises(ValueError, match="num_layouts=100000, random_size=10: too many"):
         jaxnav.make("RobotRandom-v0", num_layouts=100_000)
     with pytest.raises(ValueError, match="maze_file=5: must be a path"):

@@ -31,10 +31,11 @@ Lasers: 7 analytic ray casts over the front half (-90, -60, ..., +90 degrees fro
 
 Backends: ``mjx`` (the default) steps the robot with MuJoCo MJX (``mjx_backend.py``: a sphere
 on slide/slide/hinge joints with velocity actuators, per-env walls in the model's geom fields),
-which touches walls with at most one physics substep of penetration before the episode ends;
-``kinematic`` is an exact pure-JAX unicycle that stops in front of walls
-(``geometry.move_with_walls``), the fast path for quick experiments on CPU. Both share lasers,
-observation, reward and mazes.
+``mjx_substeps`` (2) physics steps per control step. It sees contacts at substep boundaries, so
+the robot may touch a wall by up to one substep of travel (``speed * dt / mjx_substeps``, 12.5
+cm by default; ``validate`` keeps it below the radius) before the episode ends. ``kinematic`` is
+an exact pure-JAX unicycle that stops in front of walls (``geometry.move_with_walls``), the
+fast path for quick experiments on CPU. Both share lasers, observation, reward and mazes.
 """
 
 from __future__ import annotations
@@ -76,7 +77,8 @@ class RobotConfig:
     speed: float = 2.5  # m/s, forward and backward
     turn_speed: float = 5.0  # rad/s
     dt: float = 0.1
-    substeps: int = 8
+    substeps: int = 8  # kinematic backend: collision sub-samples per step (raised if needed)
+    mjx_substeps: int = 2  # MJX backend: physics steps per control step (dt / mjx_substeps each)
     goal_radius: float = 0.5
     max_steps: int = 250
     frames: int = 4
@@ -100,6 +102,7 @@ class RobotConfig:
             ("random_size", 3, 100),
             ("num_wall_slots", 4, 4096),
             ("substeps", 1, 1000),
+            ("mjx_substeps", 1, 1000),
             ("max_steps", 1, 1_000_000),
             ("frames", 1, 64),
         ):
@@ -120,6 +123,15 @@ class RobotConfig:
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v):
                 raise ValueError(f"{name}={v!r}: must be a finite number")
+        travel = self.speed * self.dt / self.mjx_substeps
+        if self.backend == "mjx" and travel >= self.radius:
+            # contacts are seen at substep boundaries: a longer substep could carry the
+            # robot's centre past a wall's face (or through a thin wall) before MJX sees it
+            raise ValueError(
+                f"mjx_substeps={self.mjx_substeps}: a physics substep would move the robot "
+                f"{travel:g} m at speed={self.speed}, not less than its radius {self.radius}; "
+                "use more substeps"
+            )
         if (self.maze == "file") != (self.maze_file is not None):
             raise ValueError(
                 f"maze_file={self.maze_file!r}: give a maze file exactly when maze='file'"
@@ -237,7 +249,11 @@ class RobotNav(Environment[RobotState, RobotParams]):
             from jaxnav.envs.robot.mjx_backend import MjxRobot
 
             self.physics = MjxRobot(
-                c.num_wall_slots, c.radius, tuple(self.arena), timestep=c.dt / 5, substeps=5
+                c.num_wall_slots,
+                c.radius,
+                tuple(self.arena),
+                timestep=c.dt / c.mjx_substeps,
+                substeps=c.mjx_substeps,
             )
 
     @property
@@ -314,7 +330,7 @@ class RobotNav(Environment[RobotState, RobotParams]):
         else:
             walls = jax.tree.map(lambda x: x[state.layout], params.bank.walls)
             model = self.physics.with_walls(walls)
-            data = self.physics.init(model, state.pose)
+            data = self.physics.init(model, state.pose, forward=False)
             _, pose, collided, penetration = self.physics.step(model, data, v, omega)
         at_goal = jnp.linalg.norm(pose[:2] - state.goal) < params.goal_radius
         at_goal = at_goal & ~collided

@@ -12,7 +12,9 @@ writes one env's ``mazes.Walls`` into the model's ``geom_pos``, ``geom_size`` an
 
 Settings (see ``build_model``; measured for this robot in /work/shared/notes/measured-facts.md):
 
-- ``timestep`` 0.02 s x ``substeps`` 5 = one 0.1 s control step.
+- ``timestep`` x ``substeps`` = one 0.1 s control step: 0.02 s x 5 by default here; the env
+  uses 0.05 s x 2 (``RobotConfig.mjx_substeps``), about 2x the throughput of 5 substeps with the
+  same terminations on random play, at the cost of up to one substep of travel into a wall.
 - Frictionless contacts (``condim=1``): the robot slides along walls; friction needs 3-6x
   larger constraint rows and buys nothing for a robot that only has to stop.
 - Newton solver with ``iterations=1``, ``ls_iterations=4``: a handful of contact rows at most,
@@ -189,12 +191,14 @@ class MjxRobot:
         0, ...)``."""
         return jax.vmap(self.with_walls, out_axes=self.model_axes)(walls)
 
-    def init(self, model: mjx.Model, pose: jax.Array) -> mjx.Data:
-        """State at ``pose = (x, y, theta)`` at rest, with positions and contacts computed."""
+    def init(self, model: mjx.Model, pose: jax.Array, forward: bool = True) -> mjx.Data:
+        """State at ``pose = (x, y, theta)`` at rest, with positions and contacts computed
+        (``forward=False`` leaves them out: ``step`` computes them first anyway, so an env that
+        starts every control step from its pose saves one collision pass)."""
         pose = jnp.asarray(pose, jnp.float32)
         data = mjx.make_data(model)
         data = data.replace(qpos=pose.at[2].set(wrap_angle(pose[2])), qvel=jnp.zeros(3))
-        return mjx.forward(model, data)
+        return mjx.forward(model, data) if forward else data
 
     def pose(self, data: mjx.Data) -> jax.Array:
         """``float32[3]`` (x, y, theta) with theta wrapped to (-pi, pi]."""
