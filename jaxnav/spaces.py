@@ -28,7 +28,7 @@ class Discrete:
 
 
 class Box:
-    """Real vectors with elementwise bounds."""
+    """Vectors (float or integer ``dtype``) with elementwise bounds."""
 
     def __init__(self, low: Any, high: Any, shape: tuple[int, ...], dtype: Any = jnp.float32):
         self.low = low

@@ -143,7 +143,9 @@ class Trainer:
             params=params,
             target_params=params,
             opt_state=self._optimizer(hp).init(params),
-            buffer=dqn.buffer_init(c.buffer_rows, c.num_envs, self.obs_size),
+            buffer=dqn.buffer_init(
+                c.buffer_rows, c.num_envs, self.obs_size, self.env.observation_space().dtype
+            ),
             env_state=env_state,
             obs=obs,
             episode_return=jnp.zeros(c.num_envs),

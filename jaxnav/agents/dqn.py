@@ -24,7 +24,7 @@ class QNetwork(nn.Module):
 
     @nn.compact
     def __call__(self, obs: jax.Array) -> jax.Array:
-        x = obs
+        x = obs.astype(jnp.float32)  # observations may be stored compactly (int8 on the grid)
         for width in self.hidden_sizes:
             x = nn.relu(nn.Dense(width)(x))
         if not self.dueling:
@@ -58,13 +58,15 @@ class ReplayBuffer:
         return self.obs.shape[0]
 
 
-def buffer_init(capacity: int, num_envs: int, obs_size: int) -> ReplayBuffer:
+def buffer_init(
+    capacity: int, num_envs: int, obs_size: int, obs_dtype: Any = jnp.float32
+) -> ReplayBuffer:
     f = lambda *s, d=jnp.float32: jnp.zeros((capacity, num_envs, *s), d)  # noqa: E731
     return ReplayBuffer(
-        obs=f(obs_size),
+        obs=f(obs_size, d=obs_dtype),
         action=f(d=jnp.int32),
         reward=f(),
-        next_obs=f(obs_size),
+        next_obs=f(obs_size, d=obs_dtype),
         terminated=f(d=bool),
         done=f(d=bool),
         ptr=jnp.zeros((), jnp.int32),

@@ -332,6 +332,8 @@ class GridMaze(Environment[GridMazeState, GridMazeParams]):
         return len(ACTION_NAMES)
 
     def observation_space(self, params: GridMazeParams | None = None) -> spaces.Box:
+        if self.config.obs_mode == "onehot":  # bits and cell offsets: int8 is exact, 4x smaller
+            return spaces.Box(1 - self.size, self.size - 1, (self.obs_size,), jnp.int8)
         return spaces.Box(-1.0, 1.0, (self.obs_size,), jnp.float32)
 
     @property
@@ -430,14 +432,15 @@ class GridMaze(Environment[GridMazeState, GridMazeParams]):
         if mode == "onehot":
             bits = self._moves_blocked(params, state)
             neighbours = (bits >> jnp.arange(4, dtype=jnp.uint8)) & 1
+            # int8: the env's throughput is bound by writing observations (66 values each)
             return jnp.concatenate(
                 [
-                    jax.nn.one_hot(state.pos[0], s),
-                    jax.nn.one_hot(state.pos[1], s),
-                    jax.nn.one_hot(state.goal[0], s),
-                    jax.nn.one_hot(state.goal[1], s),
-                    neighbours.astype(jnp.float32),
-                    offset,
+                    jax.nn.one_hot(state.pos[0], s, dtype=jnp.int8),
+                    jax.nn.one_hot(state.pos[1], s, dtype=jnp.int8),
+                    jax.nn.one_hot(state.goal[0], s, dtype=jnp.int8),
+                    jax.nn.one_hot(state.goal[1], s, dtype=jnp.int8),
+                    neighbours.astype(jnp.int8),
+                    (state.goal - state.pos).astype(jnp.int8),  # offset in cells
                 ]
             )
         r = self.config.sensor_radius
