@@ -225,7 +225,8 @@ def test_rollout_invariants(env_id, backend, seed):
     np.testing.assert_array_equal(
         np.asarray(trunc), (np.asarray(time_before) == SHORT_LIMIT - 1) & ~np.asarray(term)
     )
-    assert np.asarray(trunc).any()
+    # (whether any episode lasts to the limit depends on the seed: at 2.5 m/s with forward-
+    # biased play all may collide first; test_auto_reset_... truncates deterministically)
     bound = 0.0 if backend == "kinematic" else c.speed * c.dt / c.mjx_substeps
     assert float(np.max(info["penetration"])) <= bound + 1e-6
     assert float(np.max(pen_after)) <= bound + 1e-6  # every state the env hands out
