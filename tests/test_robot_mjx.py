@@ -216,3 +216,13 @@ def test_per_env_walls_vmapped(robot, batched, env_walls):
             np.testing.assert_allclose(contact, analytic, atol=CONTACT_VS_ANALYTIC)
             any_hit |= np.asarray(collided)
     assert any_hit.sum() >= 2  # walls were met, each env in its own maze
+
+
+def test_import_prints_nothing():
+    """MJX's "Failed to import warp" line (an optional GPU backend) does not reach users."""
+    import subprocess
+    import sys
+
+    code = "import jaxnav.envs.robot.mjx_backend"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout == ""

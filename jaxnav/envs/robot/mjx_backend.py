@@ -41,14 +41,24 @@ Settings (see ``build_model``; measured for this robot in /work/shared/notes/mea
 
 from __future__ import annotations
 
+import contextlib
+import io
+import sys
+
 import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
-from mujoco import mjx
 
 from jaxnav.envs.robot.geometry import wrap_angle
 from jaxnav.envs.robot.mazes import PARKED_CENTER, PARKED_HALF_SIZE, Walls
+
+# MJX prints "Failed to import warp" (its optional GPU backend, not used here) on import; keep
+# every other line it prints
+with contextlib.redirect_stdout(io.StringIO()) as _printed:
+    from mujoco import mjx
+sys.stdout.write("".join(x for x in _printed.getvalue().splitlines(True) if "warp" not in x))
+
 
 MASS = 1.0  # kg; only the ratio to the gains matters for the kinematic behaviour
 INERTIA_Z = 0.01  # kg m^2 about the hinge
