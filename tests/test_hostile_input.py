@@ -119,7 +119,7 @@ def outcome(argv: list[str]) -> tuple[int, str]:
         return code, err.getvalue()
 
 
-RUN_LIMIT = 5  # end-to-end runs per session (each compiles); later valid ones are validated
+RUN_LIMIT = 3  # end-to-end runs per session (each compiles); later valid ones are validated
 TRAINED: list[list[str]] = []
 
 
