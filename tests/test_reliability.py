@@ -184,9 +184,11 @@ def test_resume_before_any_checkpoint_starts_over_with_the_saved_settings(tmp_pa
 # ------------------------------------------------------------------ divergence guard
 UNSTABLE = [
     *(a for a in TINY if a != "--quiet"),  # progress lines show where it stopped
-    "--hidden-sizes", "16,16",
+    "--hidden-sizes", "64,64",
     "--total-timesteps", "320",
     "--checkpoint-every", "32",
+    "--learning-starts", "64",  # two good checkpoints first
+    "--updates-per-iteration", "4",
     "--optimizer", "sgd",
     "--lr", "10",
     "--lr-end", "10",
@@ -229,8 +231,8 @@ def test_divergence_flag_names_the_first_bad_quantity_and_step(
         ts, _ = stepwise_run_one(ts, it)
     assert int(ts.diverged) == 0
     nan = lambda tree: jax.tree.map(lambda x: jnp.full_like(x, jnp.nan), tree)  # noqa: E731
-    if quantity == "q_values":  # what the network sees
-        ts = ts.replace(obs=jnp.full_like(ts.obs, jnp.inf))
+    if quantity == "q_values":  # the acting step's Q-values are the first to see them
+        ts = ts.replace(params=nan(ts.params))
     elif quantity == "loss":  # rewards in the replay buffer: only the TD loss sees them
         ts = ts.replace(buffer=ts.buffer.replace(reward=nan(ts.buffer.reward)))
     else:  # an infinite step size: loss and Q-values finite, the updated parameters not
