@@ -16,13 +16,14 @@ from jaxnav import experiments, render
 from jaxnav.evaluate import play, random_policy
 from jaxnav.experiments import EXAMPLE_MAZE, main
 
-# one worker runs this module's tests, so the smoke experiment below is computed once
+# One worker runs this module's tests (make test: --dist loadgroup) and the smoke experiment
+# is session-scoped, so it is computed once even when other modules' tests run in between.
 pytestmark = pytest.mark.xdist_group("experiments")
 FIGURES = ("outcomes.png", "test_comparison.png", "training_curves.png", "trajectories.png")
 AGENTS = ("dueling-double", "simple", "random")
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def smoke_dir(tmp_path_factory):
     out = tmp_path_factory.mktemp("experiments") / "grid"
     assert main(["paper-grid", "--smoke", "--seeds", "2", "--out", str(out), "--quiet"]) == 0
