@@ -199,7 +199,6 @@ TRAIN_DEFAULTS: dict[str, Any] = {
     "n_step": 3,
     "eps_decay_steps": 400_000,
     "log_interval": 100_000,
-    "eval_episodes": 100,
 }
 
 
