@@ -77,7 +77,7 @@ class RobotConfig:
     speed: float = 2.5  # m/s, forward and backward
     turn_speed: float = 5.0  # rad/s
     dt: float = 0.1
-    substeps: int = 8  # kinematic backend: collision sub-samples per step (raised if needed)
+    substeps: int = 4  # kinematic backend: collision sub-samples per step (raised if needed)
     mjx_substeps: int = 2  # MJX backend: physics steps per control step (dt / mjx_substeps each)
     goal_radius: float = 0.5
     max_steps: int = 250
