@@ -201,7 +201,9 @@ def shortest_path_length(obstacles: jax.Array, start: jax.Array, goal: jax.Array
 
 
 @jax.jit
-def _bank_distances(obstacles: jax.Array, goals: jax.Array) -> jax.Array:
+def bank_distances(obstacles: jax.Array, goals: jax.Array) -> jax.Array:
+    """int16[B, G, h, w] BFS steps from each of ``goals[B, G, 2]`` (row, col) in its layout
+    ``obstacles[B, h, w]``; -1 at obstacles and unreachable cells."""
     per_layout = jax.vmap(distance_field, in_axes=(None, 0))
     return jax.vmap(per_layout)(obstacles, goals).astype(jnp.int16)
 
@@ -233,7 +235,7 @@ def build_bank(cfg: GridMazeConfig) -> LayoutBank:
     else:
         goal_slots = np.arange(fmax, dtype=np.int32)[None, :]  # every free cell is a goal
     goals = np.take_along_axis(free_cells, goal_slots[..., None], axis=1)
-    dist = _bank_distances(jnp.asarray(obstacles), jnp.asarray(goals))
+    dist = bank_distances(jnp.asarray(obstacles), jnp.asarray(goals))
     num_obs = (~free_mask).sum(axis=1)
     omax = max(1, int(num_obs.max()))
     order_o = np.argsort(free_mask, axis=1, kind="stable")[:, :omax]

@@ -51,7 +51,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from jaxnav.envs.grid_maze import distance_field  # one BFS for both envs
+from jaxnav.envs.grid_maze import bank_distances  # one BFS for both envs
 
 WALL, FREE, START, GOAL = "#", ".", "S", "G"
 CELL_CHARS = (WALL, FREE, START, GOAL)
@@ -725,15 +725,14 @@ def stack_mazes(mazes: Sequence[Maze], num_slots: int) -> MazeBank:
         has_start=jnp.asarray(has_start),
         goal_xy=jnp.asarray(goal_xy),
         has_goal=jnp.asarray(has_goal),
-        goal_distance=_all_pairs_distances(jnp.asarray(np.stack([m.grid for m in mazes]))),
+        goal_distance=_all_pairs_distances(np.stack([m.grid for m in mazes])),
         cell_size=m0.cell_size,
     )
 
 
-@jax.jit
-def _all_pairs_distances(grids: jax.Array) -> jax.Array:
+def _all_pairs_distances(grids: np.ndarray) -> jax.Array:
     """int16[B, rows * cols, rows, cols] BFS steps from every cell of every maze."""
-    rows, cols = grids.shape[1:]
-    sources = jnp.stack(jnp.divmod(jnp.arange(rows * cols), cols), axis=-1)
-    per_maze = jax.vmap(distance_field, in_axes=(None, 0))
-    return jax.vmap(per_maze, in_axes=(0, None))(grids, sources).astype(jnp.int16)
+    num, rows, cols = grids.shape
+    every_cell = np.stack(np.divmod(np.arange(rows * cols, dtype=np.int32), cols), axis=-1)
+    sources = np.broadcast_to(every_cell, (num, rows * cols, 2))
+    return bank_distances(jnp.asarray(grids), jnp.asarray(sources))
