@@ -426,7 +426,6 @@ class GridMaze(Environment[GridMazeState, GridMazeParams]):
     def get_obs(self, state: GridMazeState, params: GridMazeParams) -> jax.Array:
         s, mode = self.size, self.config.obs_mode
         scale = 1.0 / max(s - 1, 1)
-        offset = (state.goal - state.pos).astype(jnp.float32) * scale
         if mode == "paper":
             xy = lambda rc: rc[..., ::-1].astype(jnp.float32) * scale  # noqa: E731
             obs_cells = params.bank.obstacle_cells[state.layout]
@@ -453,6 +452,7 @@ class GridMaze(Environment[GridMazeState, GridMazeParams]):
         rays = MOVES[:, None, :] * steps[None, :, None]  # [4, s-1, 2]
         hit = self._blocked(params, state.layout, state.pos + jnp.asarray(rays))
         free_run = jnp.argmax(jnp.concatenate([hit, jnp.ones((4, 1), bool)], axis=1), axis=1)
+        offset = (state.goal - state.pos).astype(jnp.float32) * scale
         return jnp.concatenate(
             [occupancy.astype(jnp.float32), free_run.astype(jnp.float32) * scale, offset]
         )
