@@ -26,12 +26,17 @@ _REGISTRY: dict[str, tuple[Callable[..., Environment], Callable[[], Any], dict[s
 }
 
 
+def _entry(env_id: str) -> tuple[Callable[..., Environment], Callable[[], Any], dict[str, Any]]:
+    """``env_id``'s registry entry; ``ValueError`` naming the valid ids if there is none."""
+    if env_id not in _REGISTRY:
+        raise ValueError(f"unknown env id {env_id!r}; valid ids: {', '.join(registered_envs())}")
+    return _REGISTRY[env_id]
+
+
 def train_defaults(env_id: str) -> dict[str, Any]:
     """TrainConfig values tuned for ``env_id`` (its module's ``TRAIN_DEFAULTS``); fields not
     listed keep TrainConfig's defaults, which are tuned for the grid."""
-    if env_id not in _REGISTRY:
-        raise ValueError(f"unknown env id {env_id!r}; valid ids: {', '.join(registered_envs())}")
-    module = sys.modules[_REGISTRY[env_id][0].__module__]
+    module = sys.modules[_entry(env_id)[0].__module__]
     return dict(getattr(module, "TRAIN_DEFAULTS", {}))
 
 
@@ -42,9 +47,7 @@ def registered_envs() -> list[str]:
 
 def env_config(env_id: str, **overrides: Any) -> Any:
     """The validated config ``make(env_id, **overrides)`` would build, without building it."""
-    if env_id not in _REGISTRY:
-        raise ValueError(f"unknown env id {env_id!r}; valid ids: {', '.join(registered_envs())}")
-    _, default_config, id_overrides = _REGISTRY[env_id]
+    _, default_config, id_overrides = _entry(env_id)
     config = dataclasses.replace(default_config(), **id_overrides)
     valid = [f.name for f in dataclasses.fields(config)]
     for name in overrides:
@@ -59,7 +62,6 @@ def env_config(env_id: str, **overrides: Any) -> Any:
 
 def make(env_id: str, **overrides: Any) -> tuple[Environment, EnvParams]:
     """``env, params = make("GridMaze-v0", size=11)``; ``ValueError`` on a bad id or value."""
-    env_cls = _REGISTRY[env_id][0] if env_id in _REGISTRY else None
     config = env_config(env_id, **overrides)
-    env = env_cls(config, name=env_id)
+    env = _entry(env_id)[0](config, name=env_id)
     return env, env.default_params
