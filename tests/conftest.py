@@ -52,6 +52,22 @@ TINY_TRAIN = TrainConfig(
 )
 
 
+# TINY_TRAIN's network, replay and schedule as command-line flags, for tests of the CLI (they
+# add the step counts they need)
+TINY_FLAGS = [
+    "--env-arg", "size=5",
+    "--hidden-sizes", "16",
+    "--num-envs", "4",
+    "--batch-size", "8",
+    "--buffer-size", "64",
+    "--learning-starts", "8",
+    "--log-interval", "32",
+    "--target-update-period", "10",
+    "--eps-decay-steps", "64",
+    "--quiet",
+]  # fmt: skip
+
+
 @pytest.fixture(scope="session")
 def tiny_config() -> TrainConfig:
     return TINY_TRAIN

@@ -10,6 +10,7 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+from conftest import TINY_FLAGS  # pytest puts tests/ on sys.path
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
@@ -20,20 +21,7 @@ from jaxnav.envs.grid_maze import GridMazeConfig
 from jaxnav.envs.robot.env import RobotConfig
 
 # a run small enough to train in a second or two; fuzzed flags come after and override it
-BASE = [
-    "--env-arg", "size=5",
-    "--hidden-sizes", "16",
-    "--num-envs", "4",
-    "--batch-size", "8",
-    "--buffer-size", "64",
-    "--learning-starts", "8",
-    "--total-timesteps", "64",
-    "--log-interval", "32",
-    "--target-update-period", "10",
-    "--eps-decay-steps", "64",
-    "--eval-episodes", "4",
-    "--quiet",
-]  # fmt: skip
+BASE = [*TINY_FLAGS, "--total-timesteps", "64", "--eval-episodes", "4"]
 
 INT_FLAGS = [
     "--seed", "--num-seeds", "--total-timesteps", "--num-envs", "--buffer-size", "--batch-size",

@@ -17,6 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import TINY_FLAGS  # pytest puts tests/ on sys.path
 
 from jaxnav import run_dir
 from jaxnav.cli import train_main
@@ -24,19 +25,10 @@ from jaxnav.train import DIVERGENCE_QUANTITIES, Trainer
 
 # 25 logging intervals of 32 env steps, a checkpoint after every other: seconds of training
 TINY = [
-    "--env-arg", "size=5",
-    "--hidden-sizes", "16",
-    "--num-envs", "4",
-    "--batch-size", "8",
-    "--buffer-size", "64",
-    "--learning-starts", "8",
+    *TINY_FLAGS,
     "--total-timesteps", "800",
-    "--log-interval", "32",
-    "--target-update-period", "10",
-    "--eps-decay-steps", "64",
     "--eval-episodes", "5",
     "--checkpoint-every", "64",
-    "--quiet",
 ]  # fmt: skip
 
 
