@@ -71,7 +71,8 @@ class UsageError(Exception):
 
 class _Parser(argparse.ArgumentParser):
     def error(self, message: str) -> None:  # one line, no usage dump
-        raise UsageError(message)
+        # argparse quotes the user's text verbatim; a value with a line break must not split it
+        raise UsageError(message.replace("\r", "\\r").replace("\n", "\\n"))
 
 
 def _bool(text: str) -> bool:
