@@ -19,13 +19,25 @@ import numpy as np
 import orbax.checkpoint as ocp
 
 
+def this_process_only() -> ocp.options.MultiprocessingOptions:
+    """Orbax options for files that one process reads or writes on its own: in a run over
+    several hosts, process 0 writes the run directory and the others only read it."""
+    me = jax.process_index()
+    return ocp.options.MultiprocessingOptions(primary_host=me, active_processes={me})
+
+
 def _is_key(x: Any) -> bool:
     return jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key)
 
 
 def _to_disk(tree: Any) -> Any:
-    """Typed PRNG keys as their raw words: orbax stores plain arrays only."""
-    return jax.tree.map(lambda x: jax.random.key_data(x) if _is_key(x) else x, tree)
+    """Typed PRNG keys as their raw words (host arrays): orbax stores plain arrays only."""
+    return jax.tree.map(lambda x: np.asarray(jax.random.key_data(x)) if _is_key(x) else x, tree)
+
+
+def _disk_like(tree: Any) -> Any:
+    """Shapes and dtypes of ``_to_disk(tree)``."""
+    return jax.tree.map(lambda x: jax.eval_shape(jax.random.key_data, x) if _is_key(x) else x, tree)
 
 
 def _from_disk(tree: Any, like: Any) -> Any:
@@ -48,15 +60,20 @@ class Checkpoints:
     small JSON-able dict (wall times, which do not affect the results).
     """
 
-    def __init__(self, directory: Path, keep: int):
+    def __init__(self, directory: Path, keep: int, writer: bool = True):
+        """``writer=False``: restore only (the other processes of a run over several hosts,
+        which read the directory process 0 writes; each manager is its process's own)."""
         self.directory = directory.absolute()
+        if writer:  # orbax creates it only without ``active_processes``
+            self.directory.mkdir(parents=True, exist_ok=True)
         self.manager = ocp.CheckpointManager(
             self.directory,
             options=ocp.CheckpointManagerOptions(
                 max_to_keep=keep,
-                create=True,
-                cleanup_tmp_directories=True,  # a save cut by a crash
+                create=False,
+                cleanup_tmp_directories=writer,  # a save cut by a crash
                 enable_async_checkpointing=False,  # saved before the next chunk starts
+                multiprocessing_options=this_process_only(),
             ),
         )
 
@@ -82,7 +99,7 @@ class Checkpoints:
             raise FileNotFoundError(f"{self.directory}: no checkpoint")
         abstract = jax.tree.map(
             lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype),
-            {"state": jax.eval_shape(_to_disk, like_state), "metrics": like_metrics},
+            {"state": _disk_like(like_state), "metrics": like_metrics},
         )
         restored = self.manager.restore(
             step,

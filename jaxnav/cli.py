@@ -24,8 +24,9 @@ from typing import Any
 
 import jax
 import numpy as np
+from jax.experimental import multihost_utils
 
-from jaxnav import run_dir
+from jaxnav import run_dir, sharding
 from jaxnav.checkpoints import Checkpoints
 from jaxnav.config import MAX_STEPS, TrainConfig
 from jaxnav.evaluate import evaluate_seeds, mean_of
@@ -41,6 +42,8 @@ HELP = {
     "num_seeds": "seeds trained at once (vmapped in one program)",
     "total_timesteps": "env steps per seed",
     "num_envs": "parallel environments per seed",
+    "devices": "devices to shard over, a count or 'all' (of every host): seeds are split "
+    "first, then each seed's envs, with gradients averaged across its devices",
     "hidden_sizes": "MLP widths, comma separated (the paper's: 512,256,128,64)",
     "dueling": "dueling heads V + A - mean(A) (paper eq. 7)",
     "double": "double-DQN targets (paper eq. 6)",
@@ -71,8 +74,13 @@ class UsageError(Exception):
 
 class _Parser(argparse.ArgumentParser):
     def error(self, message: str) -> None:  # one line, no usage dump
-        # argparse quotes the user's text verbatim; a value with a line break must not split it
-        raise UsageError(message.replace("\r", "\\r").replace("\n", "\\n"))
+        raise UsageError(one_line(message))
+
+
+def one_line(message: str) -> str:
+    """An error quotes the user's text (a value, a path) verbatim; a line break in it must
+    not split the error over lines."""
+    return message.replace("\r", "\\r").replace("\n", "\\n")
 
 
 def _bool(text: str) -> bool:
@@ -89,6 +97,17 @@ def _int_list(text: str) -> tuple[int, ...]:
         return tuple(int(x) for x in text.split(","))
     except ValueError:
         raise argparse.ArgumentTypeError(f"invalid list of integers {text!r}") from None
+
+
+def _devices(text: str) -> int | str:
+    if text == "all":
+        return text  # resolved to jax.device_count() once the backend (and hosts) are up
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"invalid device count {text!r} (a number or all)"
+        ) from None
 
 
 def _env_arg(text: str) -> tuple[str, Any]:
@@ -154,6 +173,8 @@ def train_parser() -> argparse.ArgumentParser:
             kind, meta = _bool, "{true,false}"
         elif isinstance(default, tuple):
             kind, meta, default = _int_list, "W,W,...", ",".join(map(str, default))
+        elif f.name == "devices":
+            kind, meta = _devices, "{N,all}"
         else:
             kind, meta = type(default), None
         shown = f"default: {default}" + "".join(
@@ -183,7 +204,52 @@ def train_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--keep-checkpoints", type=int, default=2, metavar="K", help="newest checkpoints kept"
     )
+    hosts = p.add_argument_group(
+        "several hosts (README: Several devices and hosts); run the same command on every "
+        "host with its own --process-id, an --out all of them can read, and --devices all"
+    )
+    hosts.add_argument("--coordinator", metavar="HOST:PORT", help="process 0's address")
+    hosts.add_argument("--num-processes", type=int, metavar="N", help="processes in the run")
+    hosts.add_argument("--process-id", type=int, metavar="I", help="this process, 0 .. N-1")
     return p
+
+
+def start_hosts(args: argparse.Namespace) -> None:
+    """``jax.distributed.initialize`` when ``--coordinator`` is given (before anything else
+    touches the JAX backend); ``UsageError`` for an incomplete or impossible set of flags."""
+    flags = {"--coordinator": args.coordinator, "--num-processes": args.num_processes}
+    flags["--process-id"] = args.process_id
+    if all(v is None for v in flags.values()):
+        return
+    missing = [k for k, v in flags.items() if v is None]
+    if missing:
+        raise UsageError(f"{', '.join(missing)} missing: the three host flags go together")
+    if not 1 <= args.num_processes <= 4096:
+        raise UsageError(f"--num-processes {args.num_processes}: must be in [1, 4096]")
+    if not 0 <= args.process_id < args.num_processes:
+        raise UsageError(
+            f"--process-id {args.process_id}: must be in [0, {args.num_processes - 1}]"
+        )
+    if args.resume is None and args.out is None:
+        raise UsageError("--out is needed with several processes: all of them write one run")
+    host, _, port = args.coordinator.rpartition(":")
+    if not host or not port.isdigit():
+        raise UsageError(f"--coordinator {args.coordinator!r}: use HOST:PORT")
+    try:
+        jax.distributed.initialize(args.coordinator, args.num_processes, args.process_id)
+    except Exception as e:  # noqa: BLE001 (XLA raises several kinds for an unreachable peer)
+        raise ValueError(f"--coordinator {args.coordinator}: {str(e).splitlines()[0]}") from None
+
+
+def is_primary() -> bool:
+    """Process 0 of a run over several hosts (and the only process otherwise) writes the
+    run directory and prints progress."""
+    return jax.process_index() == 0
+
+
+def print_primary(*args: Any, **kwargs: Any) -> None:
+    if is_primary():
+        print(*args, **kwargs)
 
 
 def config_from_args(args: argparse.Namespace) -> TrainConfig:
@@ -193,6 +259,8 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
         v = getattr(args, f.name, None)
         if f.name != "env_kwargs" and v is not None:
             values[f.name] = _int_list(v) if f.name == "hidden_sizes" and isinstance(v, str) else v
+    if values.get("devices") == "all":
+        values["devices"] = jax.device_count()
     env, values["env_kwargs"] = env_from_args(args, values.pop("env", None))
     return TrainConfig.for_env(env or "GridMaze-v0", **values)
 
@@ -249,7 +317,7 @@ def enable_compilation_cache() -> None:
 
 
 def _fail(prog: str, message: str) -> int:
-    print(f"{prog}: error: {message}", file=sys.stderr)
+    print(f"{prog}: error: {one_line(message)}", file=sys.stderr)
     return 2
 
 
@@ -258,7 +326,7 @@ class Diverged(Exception):
 
 
 class Interrupted(Exception):
-    """Stopped by a signal after saving a checkpoint; ``args[0]`` is the env step reached."""
+    """Stopped by a signal after saving a checkpoint; ``args``: (env step reached, signal)."""
 
 
 @dataclasses.dataclass
@@ -289,29 +357,33 @@ def train_seeds(
     after saving when a signal came.
     """
     t0 = time.perf_counter()
-    init = jax.jit(jax.vmap(trainer.init)).lower(keys).compile()
-    one_interval = jax.vmap(lambda ts, log: trainer.run(ts, log, 1), in_axes=(0, None))
-    state_like = jax.eval_shape(jax.vmap(trainer.init), keys)
+    init, interval, specs = trainer.sharded(keys)
+    state_like = jax.eval_shape(init, keys)
     log_like = jax.ShapeDtypeStruct((), np.int32)
-    interval = jax.jit(one_interval, donate_argnums=0).lower(state_like, log_like).compile()
+    init, interval = init.lower(keys).compile(), interval.lower(state_like, log_like).compile()
     compile_s = time.perf_counter() - t0
-    print(f"compiled in {compile_s:.1f}s", flush=True)
+    print_primary(f"compiled in {compile_s:.1f}s", flush=True)
     c = trainer.config
     steps_per_log = c.iterations_per_log * c.num_envs
-    like = jax.eval_shape(one_interval, state_like, log_like)[1]
+    like = interval.out_info[1]
     metrics = {k: np.zeros((len(keys), c.num_logs), like[k].dtype) for k in METRIC_NAMES}
-    checkpoints = (
-        None if saving is None else Checkpoints(saving.directory / "checkpoints", saving.keep)
+    checkpoints = (  # every process restores; process 0 alone saves
+        None
+        if saving is None
+        else Checkpoints(saving.directory / "checkpoints", saving.keep, writer=is_primary())
     )
     done = 0 if checkpoints is None else checkpoints.latest() or 0
     if done:
         try:
             done, state, metrics, meta = checkpoints.restore(state_like, metrics)
+            state = sharding.place(state, trainer.mesh, specs)
         except Exception as e:  # orbax raises many kinds for a damaged or foreign checkpoint
             msg = f"{checkpoints.directory}: cannot restore checkpoint {done}: {e}"
             raise ValueError(msg.splitlines()[0]) from None
         progress.seconds.update({int(k): v for k, v in meta["seconds"].items()})
-        print(f"resumed from the checkpoint at env step {done * steps_per_log:,}", flush=True)
+        print_primary(
+            f"resumed from the checkpoint at env step {done * steps_per_log:,}", flush=True
+        )
     else:
         state = init(keys)
     t0 = progress.restart(done * steps_per_log)
@@ -325,22 +397,34 @@ def train_seeds(
             continue
         _raise_if_diverged(state, c, checkpoints)
         end = log + 1 == c.num_logs
-        if (log + 1) % saving.every == 0 or end or saving.signals:
-            seconds = {str(k): v for k, v in progress.seconds.items()}
-            checkpoints.save(log + 1, state, metrics, {"seconds": seconds})
-            so_far = {k: v[:, : log + 1] for k, v in metrics.items()}
-            run_dir.write_metrics_csv(saving.directory / "metrics.csv", so_far, run_dir.seeds_of(c))
-        if saving.signals and not end:
+        stop = _signal_on_any_host(saving.signals)  # all processes stop after the same interval
+        if (log + 1) % saving.every == 0 or end or stop:
+            host_state = sharding.to_host(state)
+            if is_primary():
+                seconds = {str(k): v for k, v in progress.seconds.items()}
+                checkpoints.save(log + 1, host_state, metrics, {"seconds": seconds})
+                so_far = {k: v[:, : log + 1] for k, v in metrics.items()}
+                path = saving.directory / "metrics.csv"
+                run_dir.write_metrics_csv(path, so_far, run_dir.seeds_of(c))
+        if stop and not end:
             checkpoints.close()
-            raise Interrupted((log + 1) * steps_per_log)
+            raise Interrupted((log + 1) * steps_per_log, stop)
     train_s = time.perf_counter() - t0
     if checkpoints is not None:
         checkpoints.close()
     return state, metrics, compile_s, train_s
 
 
+def _signal_on_any_host(received: list[int]) -> int:
+    """The first signal this process received, or one another process received; 0 if none."""
+    first = received[0] if received else 0
+    if jax.process_count() == 1:
+        return first
+    return int(multihost_utils.process_allgather(np.int32(first)).max())
+
+
 def _raise_if_diverged(state: Any, c: TrainConfig, checkpoints: Checkpoints) -> None:
-    codes, at = np.asarray(state.diverged), np.asarray(state.diverged_at)
+    codes, at = sharding.to_host((state.diverged, state.diverged_at))
     if not codes.any():
         return
     last_good = (checkpoints.latest() or 0) * c.iterations_per_log * c.num_envs
@@ -363,7 +447,17 @@ def prepare_training(
 ) -> tuple[argparse.Namespace, TrainConfig, Path, Path, Trainer]:
     """``(args, config, out, partial, trainer)``: every check ``train_main`` makes before it
     writes or compiles anything; ``UsageError`` or ``ValueError`` (one line) on bad input."""
+    try:
+        return _prepare_training(argv)
+    except ValueError as e:
+        raise ValueError(one_line(str(e))) from None
+
+
+def _prepare_training(
+    argv: list[str],
+) -> tuple[argparse.Namespace, TrainConfig, Path, Path, Trainer]:
     args = train_parser().parse_args(argv)
+    start_hosts(args)
     if args.resume is not None:
         out, partial, config = resumable_run(args, argv)
     else:
@@ -371,7 +465,8 @@ def prepare_training(
         config.validate()
         out = args.out or Path("runs") / f"{config.env}-{time.strftime('%Y%m%d-%H%M%S')}"
         partial = run_dir.partial_dir(out)
-        run_dir.check_writable(out)
+        if is_primary():
+            run_dir.check_writable(out)
     if not 1 <= args.checkpoint_every <= MAX_STEPS:
         raise ValueError(f"--checkpoint-every {args.checkpoint_every}: must be in [1, {MAX_STEPS}]")
     if not 1 <= args.keep_checkpoints <= 1000:
@@ -387,21 +482,23 @@ def train_main(argv: Sequence[str] | None = None) -> int:
         args, config, out, partial, trainer = prepare_training(argv)
     except (UsageError, ValueError) as e:
         return _fail(prog, str(e))
-    progress = Progress(config, args.quiet)
+    progress = Progress(config, args.quiet or not is_primary())
 
     enable_compilation_cache()
     steps_per_log = config.iterations_per_log * config.num_envs
     every = max(1, round(args.checkpoint_every / steps_per_log))
     saving = Saving(partial, every, args.keep_checkpoints)
-    if args.resume is None:
+    if args.resume is None and is_primary():
         partial.mkdir(parents=True)
         document = run_dir.config_document(config, trainer)
         document["checkpointing"] = {k: getattr(args, k) for k in CHECKPOINT_FLAGS}
         run_dir.write_json(partial / "config.json", document)
+    if jax.process_count() > 1:
+        multihost_utils.sync_global_devices("jaxnav: run directory created")
     resume = f"python -m jaxnav.train --resume {out}"
-    print(
+    print_primary(
         f"training {config.env} for {config.total_timesteps:,} steps x {config.num_seeds} "
-        f"seed(s), {config.num_envs} envs each -> {out}\n"
+        f"seed(s), {config.num_envs} envs each on {config.devices} device(s) -> {out}\n"
         f"checkpoint every {every * steps_per_log:,} env steps in {partial}; "
         f"if stopped, continue with: {resume}",
         flush=True,
@@ -413,20 +510,24 @@ def train_main(argv: Sequence[str] | None = None) -> int:
                 trainer, run_dir.seed_keys(config), progress, saving
             )
         except Interrupted as e:
-            name = signal.Signals(saving.signals[0]).name
+            steps, signum = e.args  # signum: another host's, when this one got none
+            name = signal.Signals(signum).name
             print(
-                f"{prog}: stopped by {name} at env step {e.args[0]:,} (checkpoint saved); "
+                f"{prog}: stopped by {name} at env step {steps:,} (checkpoint saved); "
                 f"continue with: {resume}",
                 file=sys.stderr,
             )
-            return 128 + saving.signals[0]
+            return 128 + signum
         except Diverged as e:
             print(f"{prog}: diverged: {e}", file=sys.stderr)
             return EXIT_DIVERGED
         except ValueError as e:  # a checkpoint that does not restore
             return _fail(prog, str(e))
         # a signal from here on is let be: the trained run is complete in seconds
-        finish_run(trainer, state, metrics, progress, partial, out, (compile_s, train_s, t_start))
+        params = sharding.to_host(state.params)
+        if is_primary():
+            times = (compile_s, train_s, t_start)
+            finish_run(trainer, params, metrics, progress, partial, out, times)
     finally:
         restore_signal_handlers()
     return 0
@@ -434,7 +535,7 @@ def train_main(argv: Sequence[str] | None = None) -> int:
 
 def finish_run(
     trainer: Trainer,
-    state: Any,
+    params: Any,
     metrics: dict[str, np.ndarray],
     progress: Progress,
     partial: Path,
@@ -450,15 +551,15 @@ def finish_run(
     shape = metrics["env_steps"].shape
     timing = {"env_steps": metrics["env_steps"], "sps": np.broadcast_to(sps, shape)}
     t0 = time.perf_counter()
-    trained = evaluate_seeds(trainer, state.params, config.eval_episodes, seed=10_000)
-    rand = evaluate_seeds(trainer, state.params, config.eval_episodes, 10_000, "random")
+    trained = evaluate_seeds(trainer, params, config.eval_episodes, seed=10_000)
+    rand = evaluate_seeds(trainer, params, config.eval_episodes, 10_000, "random")
     eval_s = time.perf_counter() - t0
 
     # complete the hidden sibling, then rename: a crash never leaves half a run at ``out``
     seeds = run_dir.seeds_of(config)
     run_dir.write_metrics_csv(partial / "metrics.csv", metrics, seeds)
     run_dir.write_metrics_csv(partial / "timing.csv", timing, seeds)
-    run_dir.save_params(partial, state.params)
+    run_dir.save_params(partial, params)
     summary = {
         "env": config.env,
         "seeds": seeds,

@@ -6,7 +6,10 @@ import dataclasses
 import math
 from typing import Any
 
+import jax
+
 from jaxnav.registration import env_config, train_defaults
+from jaxnav.sharding import mesh_shape
 
 # step counters are int32 inside the compiled loop; keep a margin below 2^31
 MAX_STEPS = 2_000_000_000
@@ -25,6 +28,8 @@ class TrainConfig:
     num_seeds: int = 1
     total_timesteps: int = 240_000
     num_envs: int = 16
+    # devices to shard over (``jaxnav.sharding``): seeds first, then each seed's envs
+    devices: int = 1
     # network and loss
     hidden_sizes: tuple[int, ...] = (512, 256, 128, 64)
     dueling: bool = True
@@ -86,6 +91,7 @@ class TrainConfig:
             "num_seeds": (1, 4096),
             "total_timesteps": (1, MAX_STEPS),
             "num_envs": (1, 2**24),
+            "devices": (1, 65536),
             "buffer_size": (1, 10**9),
             "batch_size": (1, 2**20),
             "learning_starts": (0, MAX_STEPS),
@@ -131,6 +137,18 @@ class TrainConfig:
             raise ValueError(f"loss={self.loss!r}: must be one of huber, mse")
         if self.optimizer not in ("adam", "sgd"):
             raise ValueError(f"optimizer={self.optimizer!r}: must be one of adam, sgd")
+        if self.devices > jax.device_count():
+            raise ValueError(
+                f"devices={self.devices}: only {jax.device_count()} device(s) are available"
+            )
+        env_shards = mesh_shape(self.num_seeds, self.devices)[1]
+        for name in ("num_envs", "batch_size"):
+            if getattr(self, name) % env_shards:
+                raise ValueError(
+                    f"{name}={getattr(self, name)} is not a multiple of the {env_shards} "
+                    f"devices each seed's envs are split over (devices={self.devices}, "
+                    f"num_seeds={self.num_seeds})"
+                )
         if self.batch_size > self.buffer_size:
             raise ValueError(
                 f"batch_size={self.batch_size} is larger than buffer_size={self.buffer_size}"

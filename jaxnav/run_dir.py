@@ -18,6 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 import orbax.checkpoint as ocp
 
+from jaxnav.checkpoints import this_process_only
 from jaxnav.config import TrainConfig
 
 PACKAGES = ("jaxnav", "jax", "jaxlib", "flax", "optax", "chex", "orbax-checkpoint", "mujoco-mjx")
@@ -116,14 +117,14 @@ def _fmt(v: Any) -> str:
 
 def save_params(run: Path, params: Any) -> None:
     """Final network parameters (all seeds stacked on axis 0) as an orbax checkpoint."""
-    with ocp.StandardCheckpointer() as ckpt:
+    with ocp.StandardCheckpointer(multiprocessing_options=this_process_only()) as ckpt:
         ckpt.save((run / "params").absolute(), jax.device_get(params))
 
 
 def load_params(run: Path, like: Any) -> Any:
     """Parameters saved by ``save_params``; ``like`` gives their structure (abstract is fine)."""
     abstract = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype), like)
-    with ocp.StandardCheckpointer() as ckpt:
+    with ocp.StandardCheckpointer(multiprocessing_options=this_process_only()) as ckpt:
         return ckpt.restore((run / "params").absolute(), abstract)
 
 

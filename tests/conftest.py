@@ -4,13 +4,21 @@ worker, so each test pays for its assertions, not for compilation."""
 from __future__ import annotations
 
 import dataclasses
+import os
 
-import jax
-import pytest
+# two CPU devices for the sharding tests (set before JAX starts its backend; single-device
+# code runs on the first one as before)
+os.environ["XLA_FLAGS"] = (
+    os.environ.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=2"
+).strip()
 
-import jaxnav
-from jaxnav.config import TrainConfig
-from jaxnav.train import Trainer
+import jax  # noqa: E402
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+import jaxnav  # noqa: E402
+from jaxnav.config import TrainConfig  # noqa: E402
+from jaxnav.train import Trainer  # noqa: E402
 
 MAZE_SIZE = 7
 
@@ -107,3 +115,14 @@ def stepwise_trainer(tiny_config) -> Trainer:
 def stepwise_run_one(stepwise_trainer):
     """``jit(lambda ts, it: trainer.run(ts, it, 1))``: one iteration of the stepwise trainer."""
     return jax.jit(lambda ts, it: stepwise_trainer.run(ts, it, 1))
+
+
+def run_sharded(trainer: Trainer, keys: jax.Array, num_logs: int | None = None):
+    """``(final state, metrics [seeds, logs])`` of the seeds of ``keys`` on ``trainer.mesh``,
+    interval by interval as the CLI runs them."""
+    init, interval, _ = trainer.sharded(keys)
+    state, chunks = init(keys), []
+    for log in range(trainer.config.num_logs if num_logs is None else num_logs):
+        state, metrics = interval(state, np.int32(log))
+        chunks.append(jax.device_get(metrics))
+    return state, {k: np.concatenate([c[k] for c in chunks], axis=1) for k in chunks[0]}

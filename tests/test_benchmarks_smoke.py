@@ -70,3 +70,26 @@ def test_grid_sweep_smoke(tmp_path: Path) -> None:
     assert len(row["train_success_curve"]) == 4
     assert data["meta"]["machine"]["jax_version"]
     assert out.with_suffix(".md").read_text().count("\n") == 3
+
+
+def test_scaling_smoke(tmp_path: Path) -> None:
+    """1 and 2 (CPU) devices: every row measured, the first count's ratio 1, JSON and table."""
+    from benchmarks import scaling
+
+    out = tmp_path / "scaling.json"
+    flags = ["--devices", "1,2", "--envs", "GridMaze-v0", "--envs-per-device", "8"]
+    flags += ["--steps", "5", "--train-envs-per-device", "4", "--batch-per-device", "8"]
+    flags += ["--hidden-sizes", "16", "--iterations", "3", "--intervals", "2", "--rounds", "2"]
+    assert scaling.main([*flags, "--out", str(out)]) == 0
+    rows = json.loads(out.read_text())["rows"]
+    kinds = [
+        "env GridMaze-v0",
+        "train GridMaze-v0, envs split",
+        "train GridMaze-v0, a seed per device",
+    ]
+    assert [(r["row"], r["devices"]) for r in rows] == [(k, d) for k in kinds for d in (1, 2)]
+    for r in rows:
+        assert r["steps_per_s"] > 0 and r["compile_s"] > 0 and len(r["run_s"]) == 2
+    assert [r["num_envs"] for r in rows] == [8, 16, 4, 8, 4, 8]
+    assert [r["ratio_vs_1"] for r in rows[::2]] == [1.0, 1.0, 1.0]
+    assert "| train GridMaze-v0, envs split | 2 |" in out.with_suffix(".md").read_text()

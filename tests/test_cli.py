@@ -78,6 +78,7 @@ def test_evaluate_reads_the_run_and_generalizes(tiny_run, tmp_path, capsys):
         (["--env", "Nope-v0"], "Nope-v0"),
         (["--bogus", "1"], "--bogus"),
         (["--bogus", "a\nb"], "--bogus a\\nb"),  # a line break in the value stays on one line
+        (["--resume", "a\nb"], "--resume a\\nb: no unfinished run"),  # ... also in a path
         (["--num-envs", "0"], "num_envs=0"),
         (["--total-timesteps", "-5"], "total_timesteps=-5"),
         (["--env-arg", "size=0"], "size=0"),

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import jax
 import pytest
+from conftest import run_sharded
 
 from jaxnav.config import TrainConfig
 from jaxnav.evaluate import evaluate, random_policy
@@ -11,8 +12,11 @@ from jaxnav.train import Trainer
 
 
 @pytest.mark.slow
-def test_dueling_double_dqn_learns_a_small_maze():
+@pytest.mark.parametrize("devices", [1, 2], ids=["one-device", "envs-on-two-devices"])
+def test_dueling_double_dqn_learns_a_small_maze(devices):
+    """The same bar with the envs split over two devices (gradients averaged across them)."""
     config = TrainConfig(
+        devices=devices,
         env_kwargs={"size": 7, "max_steps": 30},
         hidden_sizes=(128, 128),
         total_timesteps=48_000,
@@ -25,7 +29,11 @@ def test_dueling_double_dqn_learns_a_small_maze():
         log_interval=8_000,
     )
     trainer = Trainer(config)
-    state, metrics = jax.jit(trainer.train)(jax.random.key(0))
+    if devices == 1:
+        state, metrics = jax.jit(trainer.train)(jax.random.key(0))
+    else:
+        state, metrics = run_sharded(trainer, jax.random.key(0)[None])
+        state, metrics = jax.tree.map(lambda x: x[0], (jax.device_get(state), metrics))
     env, params = trainer.env, trainer.env_params
     key = jax.random.key(99)
     trained = evaluate(env, params, trainer.greedy_policy(state.params), key, 500)

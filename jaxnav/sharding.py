@@ -1,0 +1,100 @@
+"""Where a training run's arrays live: a (seeds x envs) mesh over the devices of one or more hosts.
+
+Seeds are independent, so they are split across devices first (no communication at all). What
+is left of the device count splits each seed's environments: every device steps its own block of
+envs and keeps their replay rows, draws its share of each gradient batch from them, and the
+gradients are averaged across the block (``Trainer`` does the collectives). Parameters,
+optimizer state and RNG keys are replicated across a seed's env blocks and stay equal.
+
+The per-device program is the same one a single device runs, written with ``shard_map``; with
+one device (a 1 x 1 mesh) it computes exactly what the unsharded program does. Several hosts
+are the same mesh over ``jax.devices()`` after ``jax.distributed.initialize``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import jax
+import numpy as np
+from jax.experimental import multihost_utils
+from jax.sharding import Mesh, NamedSharding
+from jax.sharding import PartitionSpec as P
+
+SEEDS, ENVS = "seeds", "envs"
+
+
+def mesh_shape(num_seeds: int, devices: int) -> tuple[int, int]:
+    """``(seed shards, env shards)``: as many devices as possible go to seeds."""
+    seed_shards = math.gcd(num_seeds, devices)
+    return seed_shards, devices // seed_shards
+
+
+def make_mesh(num_seeds: int, devices: int) -> Mesh:
+    """The first ``devices`` devices (of every host) as a (seeds x envs) mesh."""
+    grid = np.array(jax.devices()[:devices]).reshape(mesh_shape(num_seeds, devices))
+    return Mesh(grid, (SEEDS, ENVS))
+
+
+def state_specs(state: Any) -> Any:
+    """``PartitionSpec``s of a seed-batched ``TrainState`` (arrays or abstract values).
+
+    Per-env fields have the env axis after the seed axis; replay arrays are [seed, time, env,
+    ...]; everything else (parameters, optimizer, keys, counters) is per seed only.
+    """
+    per_env = P(SEEDS, ENVS)
+    replay = P(SEEDS, None, ENVS)
+    per_seed = P(SEEDS)
+    buffer = state.buffer
+    buffer_specs = buffer.replace(
+        **{
+            name: replay if getattr(buffer, name).ndim >= 3 else per_seed
+            for name in buffer.__dataclass_fields__
+        }
+    )
+    specs = jax.tree.map(lambda _: per_seed, state)
+    return specs.replace(
+        buffer=buffer_specs,
+        env_state=jax.tree.map(lambda _: per_env, state.env_state),
+        obs=per_env,
+        episode_return=per_env,
+        episode_length=per_env,
+    )
+
+
+def shardings(mesh: Mesh, specs: Any) -> Any:
+    return jax.tree.map(lambda s: NamedSharding(mesh, s), specs, is_leaf=_is_spec)
+
+
+def place(tree: Any, mesh: Mesh, specs: Any) -> Any:
+    """Host (numpy) arrays, the same on every host, as global arrays laid out by ``specs``."""
+
+    def one(x: Any, spec: P) -> jax.Array:
+        if jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key):
+            data = one(jax.random.key_data(x), P(*spec, None))
+            return jax.random.wrap_key_data(data, impl=jax.random.key_impl(x))
+        x = np.asarray(x)
+        sharding = NamedSharding(mesh, spec)
+        return jax.make_array_from_callback(x.shape, sharding, lambda index: x[index])
+
+    return jax.tree.map(one, tree, specs, is_leaf=_is_spec)
+
+
+def to_host(tree: Any) -> Any:
+    """Global arrays as numpy arrays on every host (gathered across hosts when there are
+    several; typed PRNG keys stay keys)."""
+    if jax.process_count() == 1:
+        return jax.device_get(tree)
+
+    def one(x: jax.Array) -> Any:
+        if jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key):
+            data = multihost_utils.process_allgather(jax.random.key_data(x), tiled=True)
+            return jax.random.wrap_key_data(data, impl=jax.random.key_impl(x))
+        return multihost_utils.process_allgather(x, tiled=True)
+
+    return jax.tree.map(one, tree)
+
+
+def _is_spec(x: Any) -> bool:
+    return isinstance(x, P)

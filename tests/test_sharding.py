@@ -1,0 +1,116 @@
+"""Training sharded over devices (``--devices``): this session has 2 CPU devices (conftest)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import numpy as np
+import pytest
+from conftest import TINY_TRAIN, run_sharded
+
+from jaxnav import sharding
+from jaxnav.cli import train_main
+from jaxnav.config import TrainConfig
+from jaxnav.sharding import ENVS, SEEDS
+from jaxnav.train import Trainer
+
+# two logging intervals of random actions only, then learning
+WARM_UP = dataclasses.replace(TINY_TRAIN, learning_starts=64)
+KEY = jax.random.split(jax.random.key(3), 1)
+
+
+def test_session_has_two_devices():
+    assert jax.device_count() == 2
+
+
+@pytest.mark.parametrize(
+    ("num_seeds", "devices", "shape"),
+    [(1, 1, (1, 1)), (1, 2, (1, 2)), (2, 2, (2, 1)), (3, 2, (1, 2))],
+)
+def test_devices_go_to_seeds_first(num_seeds, devices, shape):
+    assert sharding.mesh_shape(num_seeds, devices) == shape
+
+
+def test_env_shards_step_their_envs_exactly_as_one_device():
+    one = Trainer(WARM_UP)
+    two = Trainer(dataclasses.replace(WARM_UP, devices=2))
+    state1, metrics1 = run_sharded(one, KEY, num_logs=2)
+    state2, metrics2 = run_sharded(two, KEY, num_logs=2)
+    # really split: each device holds half of each seed's envs and replay columns
+    assert {s.data.shape for s in state2.obs.addressable_shards} == {(1, 2, one.obs_size)}
+    rows = WARM_UP.buffer_rows
+    assert {s.data.shape for s in state2.buffer.obs.addressable_shards} == {
+        (1, rows, 2, one.obs_size)
+    }
+    # the same global random numbers, so the same episodes and replay contents, bit for bit
+    for name in ("obs", "env_state", "buffer", "episode_return", "episode_length"):
+        a, b = jax.device_get(getattr(state1, name)), jax.device_get(getattr(state2, name))
+        jax.tree.map(np.testing.assert_array_equal, a, b)
+    for k in metrics1:
+        np.testing.assert_array_equal(metrics1[k], metrics2[k], err_msg=k)
+
+
+def test_env_shards_average_gradients_and_keep_one_agent():
+    trainer = Trainer(dataclasses.replace(TINY_TRAIN, devices=2))
+    state, metrics = run_sharded(trainer, KEY)
+    assert metrics["loss"][0, -1] > 0  # it learned
+    # parameters and optimizer state are replicated over the env blocks: each device's own
+    # copy, not one device's copy reported twice, must be the same after the updates
+    for tree in (state.params, state.opt_state, state.target_params):
+        for leaf in jax.tree.leaves(tree):
+            copies = [np.asarray(s.data) for s in leaf.addressable_shards]
+            assert len(copies) == 2
+            np.testing.assert_array_equal(copies[0], copies[1])
+    one_state, _ = run_sharded(Trainer(TINY_TRAIN), KEY)
+    # a different replay sample per device, so not bitwise the same as one device, but the
+    # same agent shape and a finite, close-by result
+    jax.tree.map(
+        lambda a, b: np.testing.assert_allclose(a, b, atol=0.5), one_state.params, state.params
+    )
+
+
+def test_seed_shards_train_each_seed_as_one_device():
+    keys = jax.random.split(jax.random.key(5), 2)
+    config = dataclasses.replace(TINY_TRAIN, num_seeds=2)
+    state1, metrics1 = run_sharded(Trainer(config), keys)
+    two = Trainer(dataclasses.replace(config, devices=2))
+    assert two.mesh.shape == {SEEDS: 2, ENVS: 1}
+    state2, metrics2 = run_sharded(two, keys)
+    kernel = state2.params["params"]["value"]["kernel"]
+    assert {s.data.shape[0] for s in kernel.addressable_shards} == {1}  # a seed per device
+    for k in metrics1:
+        np.testing.assert_allclose(metrics1[k], metrics2[k], rtol=1e-5, atol=1e-6, err_msg=k)
+    assert not np.array_equal(metrics1["loss"][0], metrics1["loss"][1])  # two seeds differ
+
+
+def test_bad_device_counts_are_refused_before_work(tmp_path, capsys):
+    flags = ["--total-timesteps", "64", "--num-envs", "3", "--out", str(tmp_path / "run")]
+    assert train_main([*flags, "--devices", "all"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.endswith(
+        "num_envs=3 is not a multiple of the 2 devices each seed's envs are "
+        "split over (devices=2, num_seeds=1)"
+    ), err
+    assert train_main([*flags[:-2], "--out", str(tmp_path / "run"), "--devices", "3"]) == 2
+    assert "devices=3: only 2 device(s) are available" in capsys.readouterr().err
+    assert train_main([*flags, "--devices", "two"]) == 2
+    assert "invalid device count 'two'" in capsys.readouterr().err
+    assert not any(tmp_path.iterdir())
+
+
+def test_cli_devices_all_records_the_count(tmp_path):
+    from conftest import TINY_FLAGS
+
+    out = tmp_path / "run"
+    code = train_main([*TINY_FLAGS, "--total-timesteps", "64", "--eval-episodes", "4",
+                       "--devices", "all", "--out", str(out)])  # fmt: skip
+    assert code == 0
+    from jaxnav import run_dir
+
+    assert run_dir.load_config(out).devices == 2
+
+
+def test_config_names_the_indivisible_batch():
+    with pytest.raises(ValueError, match="batch_size=7 is not a multiple of the 2 devices"):
+        TrainConfig(num_envs=4, batch_size=7, devices=2).validate()
