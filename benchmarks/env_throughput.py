@@ -44,7 +44,6 @@ from jax.sharding import PartitionSpec as P
 
 import jaxnav
 from benchmarks.common import compile_timed, machine_info, time_in_turn, write_results
-from jaxnav.sharding import ENVS
 
 # (key, state, action) -> (obs, state, reward); one environment, vmapped by the benchmark
 StepFn = Callable[[jax.Array, Any, jax.Array], tuple[jax.Array, Any, jax.Array]]
@@ -138,44 +137,27 @@ def prepare(
 ) -> dict[str, Any]:
     """Compile one row's rollout; returns a record with ``run()`` that times one execution of
     ``steps`` steps, or fewer if one step takes so long that ``target_s`` is reached sooner.
-    With ``devices`` > 1 the envs are split evenly over that many devices (``shard_map``; each
-    device draws its own actions, the reward sums are added across devices)."""
+    With ``devices`` > 1 the envs are laid out evenly over that many devices and XLA
+    partitions the same program (no communication but the reward sum)."""
     reset, step, num_actions = build(name)
     vstep = jax.vmap(step)
-    local_envs = num_envs // devices
 
     def rollout(
         key: jax.Array, obs: jax.Array, state: Any, steps: jax.Array
     ) -> tuple[jax.Array, Any, jax.Array]:
-        if devices > 1:
-            key = jax.random.fold_in(key, jax.lax.axis_index(ENVS))
-
         def body(i: jax.Array, carry: Any) -> Any:
             obs, state, total = carry
             k_act, k_step = jax.random.split(jax.random.fold_in(key, i))
             # one 32-bit word per action: randint draws two, doubling the harness cost
-            actions = (jax.random.bits(k_act, (local_envs,)) % num_actions).astype(jnp.int32)
-            obs, state, reward = vstep(jax.random.split(k_step, local_envs), state, actions)
+            actions = (jax.random.bits(k_act, (num_envs,)) % num_actions).astype(jnp.int32)
+            obs, state, reward = vstep(jax.random.split(k_step, num_envs), state, actions)
             return obs, state, total + reward.astype(jnp.float32).sum()
 
-        obs, state, total = jax.lax.fori_loop(
-            0, steps, body, (obs, state, jnp.zeros((), jnp.float32))
-        )
-        return obs, state, total if devices == 1 else jax.lax.psum(total, ENVS)
+        return jax.lax.fori_loop(0, steps, body, (obs, state, jnp.zeros((), jnp.float32)))
 
     k_reset, k_run = jax.random.split(jax.random.key(seed))
-    reset_all = jax.jit(jax.vmap(reset))
-    if devices > 1:
-        mesh = Mesh(np.array(jax.devices()[:devices]), (ENVS,))
-        per_env = P(ENVS)
-        reset_all = jax.jit(jax.vmap(reset), out_shardings=NamedSharding(mesh, per_env))
-        rollout = jax.shard_map(
-            rollout,
-            mesh=mesh,
-            in_specs=(P(), per_env, per_env, P()),
-            out_specs=(per_env, per_env, P()),
-            check_vma=False,
-        )
+    mesh = Mesh(np.array(jax.devices()[:devices]), ("envs",))
+    reset_all = jax.jit(jax.vmap(reset), out_shardings=NamedSharding(mesh, P("envs")))
     obs, state = jax.block_until_ready(reset_all(jax.random.split(k_reset, num_envs)))
     program, compile_s = compile_timed(rollout, k_run, obs, state, jnp.int32(1))
     if target_s is not None:  # one step, warm: how many fit in target_s

@@ -18,13 +18,14 @@ import jax
 import jax.numpy as jnp
 import optax
 from flax import struct
+from jax.sharding import NamedSharding
 from jax.sharding import PartitionSpec as P
 
 from jaxnav import sharding
 from jaxnav.agents import dqn
 from jaxnav.config import TrainConfig
 from jaxnav.registration import make
-from jaxnav.sharding import ENVS
+from jaxnav.sharding import ENVS, SEEDS
 
 METRIC_NAMES = (
     "env_steps",
@@ -97,9 +98,7 @@ class Trainer:
         )
         self.obs_size = self.env.observation_space(self.env_params).shape[0]
         self._check_memory()
-        # inside ``sharded_interval`` each device holds ``num_envs / env_shards`` envs of a seed
         self.mesh = sharding.make_mesh(config.num_seeds, config.devices)
-        self.env_shards = self.mesh.shape[ENVS]
 
     def _check_memory(self) -> None:
         """``ValueError`` for sizes whose replay buffers and networks (params, target, two
@@ -166,28 +165,12 @@ class Trainer:
         frac = jnp.clip(1.0 - env_steps / hp.eps_decay_steps, 0.0, 1.0)
         return hp.eps_end + (hp.eps_start - hp.eps_end) * frac
 
-    # -- env sharding: identities on one device -------------------------------------
-    def _local(self, x: jax.Array) -> jax.Array:
-        """This device's block of a per-env array drawn for all envs: every device draws
-        the same global random numbers, so a sharded run steps its envs exactly as one
-        device would."""
-        if self.env_shards == 1:
-            return x
-        n = self.config.num_envs // self.env_shards
-        return jax.lax.dynamic_slice_in_dim(x, jax.lax.axis_index(ENVS) * n, n)
-
-    def _env_sum(self, x: Any) -> Any:
-        return x if self.env_shards == 1 else jax.lax.psum(x, ENVS)
-
-    def _env_mean(self, x: Any) -> Any:
-        return x if self.env_shards == 1 else jax.lax.pmean(x, ENVS)
-
     def _update(self, ts: TrainState, key: jax.Array) -> tuple[TrainState, dict]:
         c, hp = self.config, ts.hparams
-        if self.env_shards > 1:  # each device draws its share of the batch from its own envs
-            key = jax.random.fold_in(key, jax.lax.axis_index(ENVS))
-        batch_size = c.batch_size // self.env_shards
-        batch = dqn.buffer_sample(ts.buffer, key, batch_size, c.n_step, hp.gamma)
+        batch = dqn.buffer_sample(ts.buffer, key, c.batch_size, c.n_step, hp.gamma)
+        # data parallel over a seed's devices: each computes the loss and gradient of its part
+        # of the batch, and XLA sums the parts (the gradient averaging of ``sharded``)
+        batch = jax.lax.with_sharding_constraint(batch, NamedSharding(self.mesh, P(ENVS)))
 
         def loss_fn(params):
             return dqn.td_loss(
@@ -195,10 +178,6 @@ class Trainer:
             )
 
         (loss, aux), grads = jax.value_and_grad(loss_fn, has_aux=True)(ts.params)
-        # equal shares of the batch: the mean of the shards' gradients is the batch gradient
-        grads, loss, q_mean = self._env_mean((grads, loss, aux["q_mean"]))
-        q_max = aux["q_max"] if self.env_shards == 1 else jax.lax.pmax(aux["q_max"], ENVS)
-        aux = {"q_mean": q_mean, "q_max": q_max}
         updates, opt_state = self._optimizer(hp).update(grads, ts.opt_state, ts.params)
         params = optax.apply_updates(ts.params, updates)
         return ts.replace(params=params, opt_state=opt_state), {"loss": loss, **aux}
@@ -215,12 +194,12 @@ class Trainer:
         learning = env_steps >= c.learning_starts
         eps = jnp.where(learning, self.epsilon(hp, env_steps), 1.0)
         q = self.network.apply(ts.params, ts.obs)
-        explore = self._local(jax.random.uniform(k_eps, (c.num_envs,))) < eps
+        explore = jax.random.uniform(k_eps, (c.num_envs,)) < eps
         random_action = jax.random.randint(k_act, (c.num_envs,), 0, self.env.num_actions)
-        action = jnp.where(explore, self._local(random_action), jnp.argmax(q, axis=-1))
+        action = jnp.where(explore, random_action, jnp.argmax(q, axis=-1))
         obs, env_state, reward, terminated, truncated, info = jax.vmap(
             self.env.step, in_axes=(0, 0, 0, None)
-        )(self._local(jax.random.split(k_step, c.num_envs)), ts.env_state, action, self.env_params)
+        )(jax.random.split(k_step, c.num_envs), ts.env_state, action, self.env_params)
         done = terminated | truncated
         buffer = dqn.buffer_add(
             ts.buffer, ts.obs, action, reward, info["final_observation"], terminated, done
@@ -270,8 +249,7 @@ class Trainer:
             lambda ts: ts,
             ts,
         )
-        q_finite = self._env_sum((~jnp.isfinite(q)).sum()) == 0
-        q_finite = q_finite & jnp.isfinite(aux["q_mean"]) & jnp.isfinite(aux["q_max"])
+        q_finite = jnp.isfinite(q).all() & jnp.isfinite(aux["q_mean"]) & jnp.isfinite(aux["q_max"])
         ts = self._flag_divergence(
             ts, [q_finite, jnp.isfinite(aux["loss"])], env_steps + c.num_envs
         )
@@ -303,8 +281,6 @@ class Trainer:
         its = first + jnp.arange(c.iterations_per_log)
         ts, stats = jax.lax.scan(self._iteration, ts, its)
         s = jax.tree.map(lambda x: x.sum(), stats)
-        per_env = ("episodes", "return_sum", "length_sum", "successes", "collisions")
-        s |= self._env_sum({k: s[k] for k in per_env})
         episodes = jnp.maximum(s["episodes"], 1)
         updated = jnp.maximum(s["updated"], 1)
         env_steps = (first + c.iterations_per_log) * c.num_envs
@@ -343,28 +319,28 @@ class Trainer:
 
     def sharded(self, keys: jax.Array) -> tuple[Callable, Callable, Any]:
         """``(init, interval, specs)`` for the seeds of ``keys`` on ``self.mesh``, jitted:
-        ``init(keys)`` is the seed-batched state laid out by ``specs`` (``sharding``);
+        ``init(keys)`` is the seed-batched state laid out by ``specs`` (``jaxnav.sharding``);
         ``interval(state, log)`` runs logging interval ``log`` and returns the state (donated)
-        and that interval's metrics, [seeds, 1] each, replicated on every device and host."""
+        and that interval's metrics, [seeds, 1] each, replicated on every device and host.
+
+        The program is the one-device program; XLA partitions it (GSPMD) from the layout of
+        the state and the batch constraint in ``_update``, so a sharded run computes what one
+        device does, up to the order of floating-point sums."""
         state_like = jax.eval_shape(jax.vmap(self.init), keys)
         specs = sharding.state_specs(state_like)
-        init = jax.jit(jax.vmap(self.init), out_shardings=sharding.shardings(self.mesh, specs))
+        state_sharding = sharding.shardings(self.mesh, specs)
+        init = jax.jit(jax.vmap(self.init, spmd_axis_name=SEEDS), out_shardings=state_sharding)
 
         def interval(ts: TrainState, log: jax.Array) -> tuple[TrainState, dict]:
-            ts, metrics = jax.vmap(lambda ts: self.run(ts, log, 1))(ts)
-            return ts, jax.lax.all_gather(metrics, sharding.SEEDS, tiled=True)
+            return jax.vmap(lambda ts: self.run(ts, log, 1), spmd_axis_name=SEEDS)(ts)
 
-        # vma checks off: per-seed values are replicated over a seed's env blocks by the
-        # collectives above (the sharded-vs-one-device tests check it), which the checker
-        # cannot see through the cond that skips updates during warm-up
-        interval = jax.shard_map(
+        interval = jax.jit(
             interval,
-            mesh=self.mesh,
-            in_specs=(specs, P()),
-            out_specs=(specs, P()),
-            check_vma=False,
+            in_shardings=(state_sharding, None),
+            out_shardings=(state_sharding, NamedSharding(self.mesh, P())),
+            donate_argnums=0,
         )
-        return init, jax.jit(interval, donate_argnums=0), specs
+        return init, interval, specs
 
     def greedy_policy(self, params) -> Callable[[jax.Array, jax.Array], jax.Array]:
         return lambda key, obs: jnp.argmax(self.network.apply(params, obs), axis=-1)
