@@ -1,14 +1,15 @@
 """Where a training run's arrays live: a (seeds x envs) mesh over the devices of one or more hosts.
 
 Seeds are independent, so they are split across devices first (no communication at all). What
-is left of the device count splits each seed's environments: every device steps its own block of
-envs and keeps their replay rows, draws its share of each gradient batch from them, and the
-gradients are averaged across the block (``Trainer`` does the collectives). Parameters,
-optimizer state and RNG keys are replicated across a seed's env blocks and stay equal.
+is left of the device count splits each seed's environments and their replay columns; each
+gradient batch is split over the same devices and XLA sums the parts of the gradient.
+Parameters, optimizer state and RNG keys are replicated across a seed's devices.
 
-The per-device program is the same one a single device runs, written with ``shard_map``; with
-one device (a 1 x 1 mesh) it computes exactly what the unsharded program does. Several hosts
-are the same mesh over ``jax.devices()`` after ``jax.distributed.initialize``.
+``Trainer.sharded`` jits the one-device program with these layouts and XLA partitions it
+(GSPMD), so a sharded run computes what one device does, up to the order of floating-point
+sums. (``shard_map`` with hand-written collectives was the first version; XLA's GPU compiler
+crashed on MJX inside it.) Several hosts are the same mesh over ``jax.devices()`` after
+``jax.distributed.initialize``.
 """
 
 from __future__ import annotations
