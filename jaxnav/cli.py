@@ -26,7 +26,7 @@ import jax
 import numpy as np
 from jax.experimental import multihost_utils
 
-from jaxnav import run_dir, sharding
+from jaxnav import programs, run_dir, sharding
 from jaxnav.checkpoints import Checkpoints
 from jaxnav.config import MAX_STEPS, TrainConfig
 from jaxnav.evaluate import evaluate_seeds, mean_of
@@ -357,15 +357,19 @@ def train_seeds(
     after saving when a signal came.
     """
     t0 = time.perf_counter()
-    init, interval, specs = trainer.sharded(keys)
-    state_like = jax.eval_shape(init, keys)
-    log_like = jax.ShapeDtypeStruct((), np.int32)
-    init, interval = init.lower(keys).compile(), interval.lower(state_like, log_like).compile()
+    compiled = programs.compile_training(trainer, keys, programs.cache_directory())
+    init, interval, state_like, specs = (
+        compiled.init,
+        compiled.interval,
+        compiled.state_like,
+        compiled.specs,
+    )
     compile_s = time.perf_counter() - t0
-    print_primary(f"compiled in {compile_s:.1f}s", flush=True)
+    cached = " (traced programs from the cache)" if compiled.from_cache else ""
+    print_primary(f"compiled in {compile_s:.1f}s{cached}", flush=True)
     c = trainer.config
     steps_per_log = c.iterations_per_log * c.num_envs
-    like = interval.out_info[1]
+    like = compiled.metrics_like
     metrics = {k: np.zeros((len(keys), c.num_logs), like[k].dtype) for k in METRIC_NAMES}
     checkpoints = (  # every process restores; process 0 alone saves
         None

@@ -1,0 +1,198 @@
+"""The compiled programs of a training run, with their traced form kept on disk.
+
+XLA's persistent cache (``cli.enable_compilation_cache``) skips compiling a program seen
+before, but JAX must still trace the Python code to know which program it is: for the MJX
+robot that trace is most of a second run's start-up. So the traced programs (``jax.export``,
+StableHLO) are stored next to the XLA cache, under a key made of everything that decides
+them: the effective config, a hash of this package's source, the versions of the packages
+that trace (jax, flax, optax, mujoco-mjx), a maze file's content, the devices and processes.
+A second run with the same key deserializes them and goes straight to XLA (a cache hit
+there too). Compiling through the exported program is what the first run does as well, so
+both runs execute the same program.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import os
+import pickle
+import tempfile
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+
+from jaxnav import sharding
+from jaxnav.train import Trainer
+
+FORMAT = 1  # bump when what is stored changes
+PACKAGES = ("jax", "jaxlib", "flax", "optax", "mujoco", "mujoco-mjx")
+
+
+@dataclasses.dataclass
+class TrainingPrograms:
+    """``init(keys) -> state``; ``interval(state, log) -> (state, metrics)`` (state donated);
+    ``state_like`` the state's abstract values and ``specs`` its layout (``jaxnav.sharding``);
+    ``metrics_like`` one interval's abstract metrics; ``from_cache`` whether tracing was
+    skipped."""
+
+    init: Callable[..., Any]
+    interval: Callable[..., Any]
+    state_like: Any
+    specs: Any
+    metrics_like: dict[str, jax.ShapeDtypeStruct]
+    from_cache: bool
+
+
+def cache_directory() -> Path | None:
+    """Where traced programs are kept: ``programs/`` in XLA's persistent cache directory when
+    that cache is on (``cli.enable_compilation_cache``), else nowhere."""
+    xla = jax.config.jax_compilation_cache_dir
+    return Path(xla) / "programs" if xla else None
+
+
+def compile_training(trainer: Trainer, keys: jax.Array, cache: Path | None) -> TrainingPrograms:
+    """The compiled training programs for the seeds of ``keys``; traced programs are read from
+    and written to ``cache`` (a directory; ``None`` to trace every time)."""
+    directory = None if cache is None else cache / _key(trainer, keys)
+    blob = _load(directory)
+    from_cache = blob is not None
+    if blob is None:
+        blob = _trace(trainer, keys)
+        _save(directory, blob)
+    # both runs compile the deserialized programs, so both run the same one (and the second
+    # finds it in XLA's cache)
+    stored = _from_blob(blob)
+    state_like, treedef = stored["state_like"], stored["treedef"]
+    leaves_like = tuple(jax.tree.leaves(state_like))
+    init, interval = stored["init"], stored["interval"]
+    log_like = jax.ShapeDtypeStruct((), np.int32)
+    with jax.set_mesh(trainer.mesh):  # the device count the programs were exported for
+        flat_init = _jit_exported(init, trainer.mesh).lower(keys).compile()
+        flat_interval = _jit_exported(interval, trainer.mesh, donate_argnums=0)
+        flat_interval = flat_interval.lower(leaves_like, log_like).compile()
+
+    def run_init(keys: jax.Array) -> Any:
+        return jax.tree.unflatten(treedef, flat_init(keys))
+
+    def run_interval(state: Any, log: Any) -> tuple[Any, dict]:
+        leaves, metrics = flat_interval(tuple(jax.tree.leaves(state)), log)
+        return jax.tree.unflatten(treedef, leaves), metrics
+
+    return TrainingPrograms(
+        init=run_init,
+        interval=run_interval,
+        state_like=state_like,
+        specs=sharding.state_specs(state_like),
+        metrics_like=flat_interval.out_info[1],
+        from_cache=from_cache,
+    )
+
+
+def _jit_exported(exported: jax.export.Exported, mesh: Any, **kwargs: Any) -> Any:
+    """``jit`` of an exported program on ``mesh``'s devices, laid out as it was exported."""
+    args, _ = jax.tree.unflatten(exported.in_tree, exported.in_shardings_jax(mesh))
+    out = jax.tree.unflatten(exported.out_tree, exported.out_shardings_jax(mesh))
+    return jax.jit(exported.call, in_shardings=args, out_shardings=out, **kwargs)
+
+
+def _key(trainer: Trainer, keys: jax.Array) -> str:
+    from importlib import metadata
+
+    config = dataclasses.asdict(trainer.config)
+    parts = {
+        "format": FORMAT,
+        "config": config,
+        "keys": [list(keys.shape), str(keys.dtype)],
+        "source": _source_hash(),
+        "packages": {p: _version(metadata, p) for p in PACKAGES},
+        "devices": [d.device_kind for d in jax.devices()],
+        "processes": jax.process_count(),
+    }
+    maze_file = config["env_kwargs"].get("maze_file")
+    if maze_file is not None:
+        parts["maze_file"] = hashlib.sha256(Path(maze_file).read_bytes()).hexdigest()
+    text = json.dumps(parts, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:32]
+
+
+def _version(metadata: Any, package: str) -> str | None:
+    try:
+        return metadata.version(package)
+    except metadata.PackageNotFoundError:
+        return None
+
+
+def _source_hash() -> str:
+    digest = hashlib.sha256()
+    root = Path(__file__).parent
+    for path in sorted(root.rglob("*.py")):
+        digest.update(str(path.relative_to(root)).encode())
+        digest.update(path.read_bytes())
+    return digest.hexdigest()
+
+
+def _trace(trainer: Trainer, keys: jax.Array) -> dict[str, Any]:
+    """Export the programs over flat lists of arrays (the state's pytree classes, e.g. optax's,
+    cannot be serialized; its structure is pickled beside them)."""
+    init, interval, _ = trainer.sharded(keys)
+    state_like = jax.eval_shape(init, keys)
+    leaves, treedef = jax.tree.flatten(state_like)
+
+    def flat_init(keys: jax.Array) -> tuple[jax.Array, ...]:
+        return tuple(jax.tree.leaves(init(keys)))
+
+    def flat_interval(leaves: tuple[jax.Array, ...], log: jax.Array) -> tuple[tuple, dict]:
+        state, metrics = interval(jax.tree.unflatten(treedef, leaves), log)
+        return tuple(jax.tree.leaves(state)), metrics
+
+    log_like = jax.ShapeDtypeStruct((), np.int32)
+    return {
+        "init": jax.export.export(jax.jit(flat_init))(keys).serialize(),
+        "interval": jax.export.export(jax.jit(flat_interval))(tuple(leaves), log_like).serialize(),
+        "treedef": treedef,
+        "leaves": [(x.shape, x.dtype) for x in leaves],
+    }
+
+
+def _from_blob(blob: dict[str, Any]) -> dict[str, Any]:
+    leaves = [jax.ShapeDtypeStruct(shape, dtype) for shape, dtype in blob["leaves"]]
+    return {
+        "init": jax.export.deserialize(blob["init"]),
+        "interval": jax.export.deserialize(blob["interval"]),
+        "state_like": jax.tree.unflatten(blob["treedef"], leaves),
+        "treedef": blob["treedef"],
+    }
+
+
+def _load(directory: Path | None) -> dict[str, Any] | None:
+    """The stored blob, or ``None`` if there is none or it does not read back (a damaged or
+    foreign entry is traced again and replaced)."""
+    path = None if directory is None else directory / "programs.pkl"
+    if path is None or not path.exists():
+        return None
+    try:
+        with open(path, "rb") as f:
+            blob = pickle.load(f)
+        _from_blob(blob)
+        return blob
+    except Exception:  # noqa: BLE001
+        return None
+
+
+def _save(directory: Path | None, blob: dict[str, Any]) -> None:
+    """Written to a temporary file and renamed, so a reader never sees half of one; a cache
+    that cannot be written (read-only, full) is left alone: it only costs start-up time."""
+    if directory is None or jax.process_index() != 0:
+        return
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=directory, delete=False, suffix=".tmp") as f:
+            pickle.dump(blob, f)
+        os.replace(f.name, directory / "programs.pkl")
+    except OSError:
+        pass
