@@ -5,10 +5,10 @@ before, but JAX must still trace the Python code to know which program it is: fo
 robot that trace is most of a second run's start-up. So the traced programs (``jax.export``,
 StableHLO) are stored next to the XLA cache, under a key made of everything that decides
 them: the effective config, a hash of this package's source, the versions of the packages
-that trace (jax, flax, optax, mujoco-mjx), a maze file's content, the devices and processes.
-A second run with the same key deserializes them and goes straight to XLA (a cache hit
-there too). Compiling through the exported program is what the first run does as well, so
-both runs execute the same program.
+that trace (jax, flax, optax, mujoco-mjx), a maze file's content and the devices. A second
+run with the same key deserializes them and goes straight to XLA (a cache hit there too); a
+run over several processes traces every time. Compiling through the exported program is
+what the first run does as well, so both runs execute the same program.
 """
 
 from __future__ import annotations
@@ -50,7 +50,8 @@ class TrainingPrograms:
 
 def cache_directory() -> Path | None:
     """Where traced programs are kept: ``programs/`` in XLA's persistent cache directory when
-    that cache is on (``cli.enable_compilation_cache``), else nowhere."""
+    that cache is on (``cli.enable_compilation_cache``), else nowhere. Not used in a run over
+    several processes."""
     xla = jax.config.jax_compilation_cache_dir
     return Path(xla) / "programs" if xla else None
 
@@ -58,7 +59,10 @@ def cache_directory() -> Path | None:
 def compile_training(trainer: Trainer, keys: jax.Array, cache: Path | None) -> TrainingPrograms:
     """The compiled training programs for the seeds of ``keys``; traced programs are read from
     and written to ``cache`` (a directory; ``None`` to trace every time)."""
-    directory = None if cache is None else cache / _key(trainer, keys)
+    # several processes trace for themselves: each must compile the very program the others
+    # do, which one process's cache entry would not guarantee
+    off = cache is None or jax.process_count() > 1
+    directory = None if off else cache / _key(trainer, keys)
     blob = _load(directory)
     from_cache = blob is not None
     if blob is None:
@@ -111,7 +115,6 @@ def _key(trainer: Trainer, keys: jax.Array) -> str:
         "source": _source_hash(),
         "packages": {p: _version(metadata, p) for p in PACKAGES},
         "devices": [d.device_kind for d in jax.devices()],
-        "processes": jax.process_count(),
     }
     maze_file = config["env_kwargs"].get("maze_file")
     if maze_file is not None:
@@ -187,7 +190,7 @@ def _load(directory: Path | None) -> dict[str, Any] | None:
 def _save(directory: Path | None, blob: dict[str, Any]) -> None:
     """Written to a temporary file and renamed, so a reader never sees half of one; a cache
     that cannot be written (read-only, full) is left alone: it only costs start-up time."""
-    if directory is None or jax.process_index() != 0:
+    if directory is None:
         return
     try:
         directory.mkdir(parents=True, exist_ok=True)
