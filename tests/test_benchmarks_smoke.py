@@ -93,3 +93,15 @@ def test_scaling_smoke(tmp_path: Path) -> None:
     assert [r["num_envs"] for r in rows] == [8, 16, 4, 8, 4, 8]
     assert [r["ratio_vs_1"] for r in rows[::2]] == [1.0, 1.0, 1.0]
     assert "| train GridMaze-v0, envs split | 2 |" in out.with_suffix(".md").read_text()
+
+
+def test_step_kernels_smoke(tmp_path: Path, capsys) -> None:
+    from benchmarks import step_kernels
+
+    flags = ["--num-envs", "4", "--steps", "2", "--envs", "GridMaze-v0", "--out", str(tmp_path)]
+    assert step_kernels.main(flags) == 0
+    row = capsys.readouterr().out.strip().splitlines()[-1].split("|")
+    assert row[1].strip() == "GridMaze-v0"
+    kernels, per_step, steps_per_s = int(row[2]), float(row[5]), float(row[6])
+    assert kernels > 0 and per_step > 0 and steps_per_s > 0
+    assert (tmp_path / "GridMaze-v0.hlo.txt").read_text().count("ENTRY") == 1
