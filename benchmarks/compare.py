@@ -66,10 +66,10 @@ PAIRS = {
 
 def env_section(args: argparse.Namespace) -> dict[str, Any]:
     envs, skipped = env_throughput.usable(args.envs)
-    rows = []
+    rows, out_of_memory = [], {}
     for n in args.num_envs:
         for row in env_throughput.measure_interleaved(
-            envs, n, args.steps, args.rounds, args.target_s
+            envs, n, args.steps, args.rounds, args.target_s, out_of_memory
         ):
             print(
                 f"{row['env']:26s} {n:7d} envs: compile {row['compile_s']:6.2f} s, "
@@ -77,7 +77,12 @@ def env_section(args: argparse.Namespace) -> dict[str, Any]:
                 file=sys.stderr,
             )
             rows.append(row)
-    return {"skipped": skipped, "rows": rows, "ratios": ratios(rows)}
+    return {
+        "skipped": skipped,
+        "out_of_memory": out_of_memory,
+        "rows": rows,
+        "ratios": ratios(rows),
+    }
 
 
 def ratios(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -132,6 +137,8 @@ def env_tables(section: dict[str, Any]) -> str:
             lines.append(f"| {ours} / {peer} | {text} | >= {PAIRS[ours][1]:g} |")
     if section["skipped"]:
         lines += ["", "Skipped: " + "; ".join(f"{k} ({v})" for k, v in section["skipped"].items())]
+    if section.get("out_of_memory"):
+        lines += ["", "Out of memory, left out: " + "; ".join(section["out_of_memory"])]
     return "\n".join(lines)
 
 

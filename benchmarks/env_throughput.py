@@ -174,15 +174,37 @@ def prepare(
 
 
 def measure_interleaved(
-    names: list[str], num_envs: int, steps: int, rounds: int, target_s: float | None = None
+    names: list[str],
+    num_envs: int,
+    steps: int,
+    rounds: int,
+    target_s: float | None = None,
+    out_of_memory: dict[str, str] | None = None,
 ) -> list[dict]:
     """Time every row ``rounds`` times in turn (row A, B, C, A, B, C, ...), so that a change of
-    machine load hits all rows alike and the ratios stay meaningful; median per row."""
-    rows = [prepare(name, num_envs, steps, target_s) for name in names]
+    machine load hits all rows alike and the ratios stay meaningful; median per row.
+
+    A row that runs out of device memory (at large ``num_envs`` on a GPU) is left out and
+    noted in ``out_of_memory`` ("NAME @ N envs" -> the error's first line) when given, so one
+    peer's reset cannot end the whole run; any other error is raised."""
+    rows = []
+    for name in names:
+        try:
+            rows.append(prepare(name, num_envs, steps, target_s))
+        except Exception as e:  # noqa: BLE001 (XLA's runtime error type differs by version)
+            if out_of_memory is None or not is_out_of_memory(e):
+                raise
+            out_of_memory[f"{name} @ {num_envs} envs"] = str(e).splitlines()[0][:300]
+            print(f"{name} at {num_envs} envs: out of memory, left out", file=sys.stderr)
     time_in_turn(rows, rounds)
     for row in rows:
         row["steps_per_s"] = num_envs * row["steps"] / statistics.median(row["run_s"])
     return rows
+
+
+def is_out_of_memory(error: Exception) -> bool:
+    text = str(error)
+    return "RESOURCE_EXHAUSTED" in text or "out of memory" in text.lower()
 
 
 def add_ratios(rows: list[dict[str, Any]]) -> None:
