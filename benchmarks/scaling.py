@@ -50,8 +50,7 @@ def train_row(label: str, config: TrainConfig, intervals: int) -> dict[str, Any]
     trainer = Trainer(config)
     keys = run_dir.seed_keys(config)
     t0 = time.perf_counter()
-    init, interval, _ = trainer.sharded(keys)
-    state_like = jax.eval_shape(init, keys)
+    init, interval, state_like = trainer.sharded(keys)
     log_like = jax.ShapeDtypeStruct((), np.int32)
     init, interval = init.lower(keys).compile(), interval.lower(state_like, log_like).compile()
     compile_s = time.perf_counter() - t0

@@ -142,8 +142,7 @@ def _source_hash() -> str:
 def _trace(trainer: Trainer, keys: jax.Array) -> dict[str, Any]:
     """Export the programs over flat lists of arrays (the state's pytree classes, e.g. optax's,
     cannot be serialized; its structure is pickled beside them)."""
-    init, interval, _ = trainer.sharded(keys)
-    state_like = jax.eval_shape(init, keys)
+    init, interval, state_like = trainer.sharded(keys)
     leaves, treedef = jax.tree.flatten(state_like)
 
     def flat_init(keys: jax.Array) -> tuple[jax.Array, ...]:

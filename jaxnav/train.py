@@ -318,10 +318,11 @@ class Trainer:
         return self.run(self.init(key, hparams), 0, self.config.num_logs)
 
     def sharded(self, keys: jax.Array) -> tuple[Callable, Callable, Any]:
-        """``(init, interval, specs)`` for the seeds of ``keys`` on ``self.mesh``, jitted:
-        ``init(keys)`` is the seed-batched state laid out by ``specs`` (``jaxnav.sharding``);
-        ``interval(state, log)`` runs logging interval ``log`` and returns the state (donated)
-        and that interval's metrics, [seeds, 1] each, replicated on every device and host.
+        """``(init, interval, state_like)`` for the seeds of ``keys`` on ``self.mesh``:
+        ``init(keys)``, jitted, is the seed-batched state (abstract: ``state_like``) laid out
+        by ``sharding.state_specs``; ``interval(state, log)``, jitted, runs logging interval
+        ``log`` and returns the state (donated) and that interval's metrics, [seeds, 1] each,
+        replicated on every device and host.
 
         The program is the one-device program; XLA partitions it (GSPMD) from the layout of
         the state and the batch constraint in ``_update``, so a sharded run computes what one
@@ -330,6 +331,11 @@ class Trainer:
         specs = sharding.state_specs(state_like)
         state_sharding = sharding.shardings(self.mesh, specs)
         init = jax.jit(jax.vmap(self.init, spmd_axis_name=SEEDS), out_shardings=state_sharding)
+        state_like = jax.tree.map(
+            lambda x, s: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=s),
+            state_like,
+            state_sharding,
+        )
 
         def interval(ts: TrainState, log: jax.Array) -> tuple[TrainState, dict]:
             return jax.vmap(lambda ts: self.run(ts, log, 1), spmd_axis_name=SEEDS)(ts)
@@ -340,7 +346,7 @@ class Trainer:
             out_shardings=(state_sharding, NamedSharding(self.mesh, P())),
             donate_argnums=0,
         )
-        return init, interval, specs
+        return init, interval, state_like
 
     def greedy_policy(self, params) -> Callable[[jax.Array, jax.Array], jax.Array]:
         return lambda key, obs: jnp.argmax(self.network.apply(params, obs), axis=-1)
