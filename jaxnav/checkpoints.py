@@ -18,6 +18,8 @@ import jax
 import numpy as np
 import orbax.checkpoint as ocp
 
+from jaxnav.sharding import is_key
+
 
 def this_process_only() -> ocp.options.MultiprocessingOptions:
     """Orbax options for files that one process reads or writes on its own: in a run over
@@ -26,23 +28,19 @@ def this_process_only() -> ocp.options.MultiprocessingOptions:
     return ocp.options.MultiprocessingOptions(primary_host=me, active_processes={me})
 
 
-def _is_key(x: Any) -> bool:
-    return jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key)
-
-
 def _to_disk(tree: Any) -> Any:
     """Typed PRNG keys as their raw words (host arrays): orbax stores plain arrays only."""
-    return jax.tree.map(lambda x: np.asarray(jax.random.key_data(x)) if _is_key(x) else x, tree)
+    return jax.tree.map(lambda x: np.asarray(jax.random.key_data(x)) if is_key(x) else x, tree)
 
 
 def _disk_like(tree: Any) -> Any:
     """Shapes and dtypes of ``_to_disk(tree)``."""
-    return jax.tree.map(lambda x: jax.eval_shape(jax.random.key_data, x) if _is_key(x) else x, tree)
+    return jax.tree.map(lambda x: jax.eval_shape(jax.random.key_data, x) if is_key(x) else x, tree)
 
 
 def _from_disk(tree: Any, like: Any) -> Any:
     def back(x, like_leaf):
-        if not _is_key(like_leaf):
+        if not is_key(like_leaf):
             return x
         key = jax.random.wrap_key_data(x)  # the default impl, which made the saved keys
         if key.dtype != like_leaf.dtype:

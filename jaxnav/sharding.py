@@ -72,7 +72,7 @@ def place(tree: Any, mesh: Mesh, specs: Any) -> Any:
     """Host (numpy) arrays, the same on every host, as global arrays laid out by ``specs``."""
 
     def one(x: Any, spec: P) -> jax.Array:
-        if jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key):
+        if is_key(x):
             data = one(jax.random.key_data(x), P(*spec, None))
             return jax.random.wrap_key_data(data, impl=jax.random.key_impl(x))
         x = np.asarray(x)
@@ -89,12 +89,17 @@ def to_host(tree: Any) -> Any:
         return jax.device_get(tree)
 
     def one(x: jax.Array) -> Any:
-        if jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key):
+        if is_key(x):
             data = multihost_utils.process_allgather(jax.random.key_data(x), tiled=True)
             return jax.random.wrap_key_data(data, impl=jax.random.key_impl(x))
         return multihost_utils.process_allgather(x, tiled=True)
 
     return jax.tree.map(one, tree)
+
+
+def is_key(x: Any) -> bool:
+    """A typed PRNG key array (stored and moved as its raw ``key_data`` words)."""
+    return jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key)
 
 
 def _is_spec(x: Any) -> bool:
