@@ -1,9 +1,11 @@
 """Planar geometry for a circular differential-drive robot among axis-aligned box walls.
 
-Pure JAX, no Python loops over walls or rays: every function works on one robot and is meant
-to be ``jit``-ed and ``vmap``-ed over environments by the caller. Frames and units: metres,
-x right, y up, angles in radians counter-clockwise from +x. A pose is ``float32[3]``
-``(x, y, theta)`` with ``theta`` in ``(-pi, pi]``.
+Pure JAX: every function works on one robot and is meant to be ``jit``-ed and ``vmap``-ed
+over environments by the caller. The few walls (a static count) are unrolled in Python with a
+running min / max, which XLA fuses with the rest of a step instead of passing [rays, walls]
+arrays through memory. Frames and units: metres, x right, y up, angles in radians
+counter-clockwise from +x. A pose is ``float32[3]`` ``(x, y, theta)`` with ``theta`` in
+``(-pi, pi]``.
 
 Walls are plain arrays (the layout of ``jaxnav.envs.robot.mazes.Walls``): ``center:
 float32[W, 2]``, ``half_size: float32[W, 2]`` (axis-aligned boxes), ``active: bool[W]``.
@@ -70,22 +72,29 @@ def ray_box_distances(
     within ``max_range`` return exactly ``max_range``.
     """
     origin = jnp.asarray(origin, jnp.float32)
-    d = jnp.asarray(directions, jnp.float32)[:, None, :]  # [R, 1, 2]
-    c = jnp.asarray(center, jnp.float32)[None]  # [1, W, 2]
-    h = jnp.asarray(half_size, jnp.float32)[None]
-    rel = c - origin  # box center relative to the ray origin
-    parallel = jnp.abs(d) < _PARALLEL_EPS
+    d = jnp.asarray(directions, jnp.float32)
+    c = jnp.asarray(center, jnp.float32)
+    h = jnp.asarray(half_size, jnp.float32)
+    active = jnp.asarray(active, bool)
+    parallel = jnp.abs(d) < _PARALLEL_EPS  # [R, 2]
     inv = 1.0 / jnp.where(parallel, 1.0, d)
-    t1 = (rel - h) * inv
-    t2 = (rel + h) * inv
-    in_slab = jnp.abs(rel) <= h  # only used for parallel components
-    t_near = jnp.where(parallel, jnp.where(in_slab, -_FAR, _FAR), jnp.minimum(t1, t2))
-    t_far = jnp.where(parallel, jnp.where(in_slab, _FAR, -_FAR), jnp.maximum(t1, t2))
-    enter = jnp.max(t_near, axis=-1)  # [R, W]
-    leave = jnp.min(t_far, axis=-1)
-    hit = (enter <= leave) & (leave >= 0.0) & jnp.asarray(active, bool)[None, :]
-    dist = jnp.where(hit, jnp.maximum(enter, 0.0), _FAR)
-    return jnp.minimum(jnp.min(dist, axis=-1, initial=_FAR), jnp.asarray(max_range, jnp.float32))
+    nearest = jnp.broadcast_to(jnp.asarray(max_range, jnp.float32), d.shape[:1])
+    # One wall at a time with a running minimum (the wall count is small and static): an
+    # [R, W] array with reductions over W made XLA split the step into kernels that pass
+    # such arrays through memory; elementwise on [R] it fuses. Min is exact, so the result
+    # is the same in any order.
+    for w in range(c.shape[0]):
+        rel = c[w] - origin  # box centre relative to the ray origin
+        t1 = (rel - h[w]) * inv  # [R, 2]
+        t2 = (rel + h[w]) * inv
+        in_slab = jnp.abs(rel) <= h[w]  # only used for parallel components
+        t_near = jnp.where(parallel, jnp.where(in_slab, -_FAR, _FAR), jnp.minimum(t1, t2))
+        t_far = jnp.where(parallel, jnp.where(in_slab, _FAR, -_FAR), jnp.maximum(t1, t2))
+        enter = jnp.maximum(t_near[:, 0], t_near[:, 1])
+        leave = jnp.minimum(t_far[:, 0], t_far[:, 1])
+        hit = (enter <= leave) & (leave >= 0.0) & active[w]
+        nearest = jnp.where(hit, jnp.minimum(nearest, jnp.maximum(enter, 0.0)), nearest)
+    return nearest
 
 
 def lasers(
@@ -125,16 +134,21 @@ def circle_box_penetration(
     p = jnp.asarray(position, jnp.float32)
     c = jnp.asarray(center, jnp.float32)
     h = jnp.asarray(half_size, jnp.float32)
-    rel = p - c  # [W, 2]
-    closest = jnp.clip(rel, -h, h)
-    gap = rel - closest
-    d2 = jnp.sum(gap * gap, axis=-1)
-    outside = d2 > 0.0
-    dist = jnp.where(outside, jnp.sqrt(jnp.where(outside, d2, 1.0)), 0.0)  # NaN-free gradient
-    depth_inside = jnp.min(h - jnp.abs(rel), axis=-1)
-    pen = jnp.asarray(radius, jnp.float32) + jnp.where(outside, -dist, depth_inside)
-    pen = jnp.where(jnp.asarray(active, bool), pen, 0.0)
-    return jnp.max(pen, initial=0.0)
+    active = jnp.asarray(active, bool)
+    radius = jnp.asarray(radius, jnp.float32)
+    deepest = jnp.zeros((), jnp.float32)
+    for w in range(c.shape[0]):  # a running maximum, for the reason given in ray_box_distances
+        rel = p - c[w]
+        closest = jnp.clip(rel, -h[w], h[w])
+        gap = rel - closest
+        d2 = gap[0] * gap[0] + gap[1] * gap[1]  # a 2-element jnp.sum per wall is slow on CPU
+        outside = d2 > 0.0
+        dist = jnp.where(outside, jnp.sqrt(jnp.where(outside, d2, 1.0)), 0.0)  # NaN-free grad
+        inside = h[w] - jnp.abs(rel)
+        depth_inside = jnp.minimum(inside[0], inside[1])
+        pen = radius + jnp.where(outside, -dist, depth_inside)
+        deepest = jnp.where(active[w], jnp.maximum(deepest, pen), deepest)
+    return deepest
 
 
 def collides(
