@@ -1,9 +1,7 @@
 """Planar geometry for a circular differential-drive robot among axis-aligned box walls.
 
 Pure JAX: every function works on one robot and is meant to be ``jit``-ed and ``vmap``-ed
-over environments by the caller. The few walls (a static count) are unrolled in Python with a
-running min / max, which XLA fuses with the rest of a step instead of passing [rays, walls]
-arrays through memory. Frames and units: metres, x right, y up, angles in radians
+over environments by the caller. Frames and units: metres, x right, y up, angles in radians
 counter-clockwise from +x. A pose is ``float32[3]`` ``(x, y, theta)`` with ``theta`` in
 ``(-pi, pi]``.
 
@@ -71,23 +69,50 @@ def ray_box_distances(
     or empty; finite stand-ins for +-inf keep every result finite. Rays that hit nothing
     within ``max_range`` return exactly ``max_range``.
     """
-    origin = jnp.asarray(origin, jnp.float32)
-    d = jnp.asarray(directions, jnp.float32)
-    c = jnp.asarray(center, jnp.float32)
-    h = jnp.asarray(half_size, jnp.float32)
-    active = jnp.asarray(active, bool)
-    parallel = jnp.abs(d) < _PARALLEL_EPS  # [R, 2]
+    args = (
+        jnp.asarray(origin, jnp.float32),
+        jnp.asarray(directions, jnp.float32),
+        jnp.asarray(center, jnp.float32),
+        jnp.asarray(half_size, jnp.float32),
+        jnp.asarray(active, bool),
+        jnp.asarray(max_range, jnp.float32),
+    )
+    # Two layouts of the same arithmetic (bitwise equal results), each the faster one where
+    # it is used: on a GPU, [R, W] arrays reduced over walls made XLA split the step into
+    # kernels passing them through memory (unrolled: 1.5x env steps/s, H100); on a CPU the
+    # stacked form vectorizes over the walls (unrolled: 0.9x with 17 walls).
+    return jax.lax.platform_dependent(
+        *args, cpu=_ray_box_distances_stacked, default=_ray_box_distances_unrolled
+    )
+
+
+def _ray_box_distances_stacked(origin, directions, center, half_size, active, max_range):
+    d = directions[:, None, :]  # [R, 1, 2]
+    c, h = center[None], half_size[None]  # [1, W, 2]
+    rel = c - origin  # box centre relative to the ray origin
+    parallel = jnp.abs(d) < _PARALLEL_EPS
     inv = 1.0 / jnp.where(parallel, 1.0, d)
-    nearest = jnp.broadcast_to(jnp.asarray(max_range, jnp.float32), d.shape[:1])
-    # One wall at a time with a running minimum (the wall count is small and static): an
-    # [R, W] array with reductions over W made XLA split the step into kernels that pass
-    # such arrays through memory; elementwise on [R] it fuses. Min is exact, so the result
-    # is the same in any order.
-    for w in range(c.shape[0]):
-        rel = c[w] - origin  # box centre relative to the ray origin
-        t1 = (rel - h[w]) * inv  # [R, 2]
-        t2 = (rel + h[w]) * inv
-        in_slab = jnp.abs(rel) <= h[w]  # only used for parallel components
+    t1 = (rel - h) * inv
+    t2 = (rel + h) * inv
+    in_slab = jnp.abs(rel) <= h  # only used for parallel components
+    t_near = jnp.where(parallel, jnp.where(in_slab, -_FAR, _FAR), jnp.minimum(t1, t2))
+    t_far = jnp.where(parallel, jnp.where(in_slab, _FAR, -_FAR), jnp.maximum(t1, t2))
+    enter = jnp.max(t_near, axis=-1)  # [R, W]
+    leave = jnp.min(t_far, axis=-1)
+    hit = (enter <= leave) & (leave >= 0.0) & active[None, :]
+    dist = jnp.where(hit, jnp.maximum(enter, 0.0), _FAR)
+    return jnp.minimum(jnp.min(dist, axis=-1, initial=_FAR), max_range)
+
+
+def _ray_box_distances_unrolled(origin, directions, center, half_size, active, max_range):
+    parallel = jnp.abs(directions) < _PARALLEL_EPS  # [R, 2]
+    inv = 1.0 / jnp.where(parallel, 1.0, directions)
+    nearest = jnp.broadcast_to(max_range, directions.shape[:1])
+    for w in range(center.shape[0]):  # a running minimum over the walls: exact in any order
+        rel = center[w] - origin
+        t1 = (rel - half_size[w]) * inv  # [R, 2]
+        t2 = (rel + half_size[w]) * inv
+        in_slab = jnp.abs(rel) <= half_size[w]
         t_near = jnp.where(parallel, jnp.where(in_slab, -_FAR, _FAR), jnp.minimum(t1, t2))
         t_far = jnp.where(parallel, jnp.where(in_slab, _FAR, -_FAR), jnp.maximum(t1, t2))
         enter = jnp.maximum(t_near[:, 0], t_near[:, 1])
@@ -137,7 +162,9 @@ def circle_box_penetration(
     active = jnp.asarray(active, bool)
     radius = jnp.asarray(radius, jnp.float32)
     deepest = jnp.zeros((), jnp.float32)
-    for w in range(c.shape[0]):  # a running maximum, for the reason given in ray_box_distances
+    # one wall at a time, a running maximum: fuses on a GPU (see ray_box_distances) and is
+    # as fast as arrays over walls on a CPU
+    for w in range(c.shape[0]):
         rel = p - c[w]
         closest = jnp.clip(rel, -h[w], h[w])
         gap = rel - closest
