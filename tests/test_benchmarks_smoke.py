@@ -6,6 +6,8 @@ import json
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = str(Path(__file__).resolve().parents[1])  # `benchmarks` is not installed; plain `pytest`
 if ROOT not in sys.path:
     sys.path.insert(0, ROOT)
@@ -105,3 +107,20 @@ def test_step_kernels_smoke(tmp_path: Path, capsys) -> None:
     kernels, per_step, steps_per_s = int(row[2]), float(row[5]), float(row[6])
     assert kernels > 0 and per_step > 0 and steps_per_s > 0
     assert (tmp_path / "GridMaze-v0.hlo.txt").read_text().count("ENTRY") == 1
+
+
+@pytest.mark.xdist_group("multihost")  # starts processes of its own
+def test_multiprocess_smoke(tmp_path: Path) -> None:
+    """On CPU, one process with 2 devices (run twice) and 2 processes with 1 device each write
+    the same metrics.csv, and the benchmark says so in its JSON and table."""
+    from conftest import TINY_FLAGS
+
+    from benchmarks import multiprocess
+
+    out = tmp_path / "multiprocess.json"
+    train_args = " ".join([*TINY_FLAGS, "--eval-episodes", "4", "--total-timesteps", "128"])
+    result = multiprocess.main(["--splits", "envs", "--train-args", train_args, "--out", str(out)])
+    (row,) = json.loads(out.read_text())["rows"]
+    assert row == result["rows"][0]
+    assert row["one_process_twice_equal"] and row["one_vs_multi_process_equal"]
+    assert "| envs | bitwise equal | bitwise equal |" in out.with_suffix(".md").read_text()
