@@ -209,32 +209,6 @@ def test_rays_bulk_random_scenes_vmapped():
     assert 0 < (got == MAX_RANGE).mean() < 1  # both hits and misses occurred
 
 
-@pytest.mark.parametrize("walls", [0, 1, W])
-def test_ray_layouts_agree_bitwise(walls):
-    """ray_box_distances runs the stacked layout on a CPU and the unrolled one elsewhere (GPU):
-    both give the same numbers exactly, so this CPU test suite vouches for the GPU's."""
-    rng = np.random.default_rng(walls)
-    n = 200
-    origins = rng.uniform(-4, 4, (n, 2)).astype(np.float32)
-    centers = rng.uniform(-4, 4, (n, walls, 2)).astype(np.float32)
-    halves = rng.uniform(0.02, 1.0, (n, walls, 2)).astype(np.float32)
-    active = rng.random((n, walls)) < 0.8  # origins inside boxes included: range 0
-    if walls:  # a third of the origins on a corner of their first box: grazing rays
-        corner = centers[:, 0] + halves[:, 0] * rng.choice([-1, 1], (n, 2))
-        origins = np.where(np.arange(n)[:, None] % 3 == 0, corner, origins).astype(np.float32)
-    theta = rng.uniform(-np.pi, np.pi, (n, 7))
-    dirs = np.concatenate(
-        [np.broadcast_to(AXES, (n, 4, 2)), np.stack([np.cos(theta), np.sin(theta)], -1)], 1
-    ).astype(np.float32)
-    args = (origins, dirs, centers, halves, active, np.float32(MAX_RANGE))
-    in_axes = (0, 0, 0, 0, 0, None)
-    stacked = jax.jit(jax.vmap(g._ray_box_distances_stacked, in_axes))(*args)
-    unrolled = jax.jit(jax.vmap(g._ray_box_distances_unrolled, in_axes))(*args)
-    np.testing.assert_array_equal(stacked, unrolled)
-    if walls:
-        assert 0 < (np.asarray(stacked) == MAX_RANGE).mean() < 1  # hits and misses
-
-
 def test_rays_axis_aligned_grazing_inside_and_inactive():
     c = np.array([[2.0, 0.0], [0.0, -3.0], [0.0, 0.0]], np.float32)
     h = np.array([[0.5, 0.5], [1.0, 0.25], [0.1, 0.1]], np.float32)
