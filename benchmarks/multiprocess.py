@@ -26,6 +26,7 @@ import socket
 import subprocess
 import sys
 import tempfile
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -63,7 +64,7 @@ def _env(devices: int, visible: str | None, deterministic: bool, gpu: bool) -> d
     return env
 
 
-def _train(args: list[str], out: Path, extra: list[str] = ()) -> list[str]:
+def _train(args: list[str], out: Path, extra: Sequence[str] = ()) -> list[str]:
     return [sys.executable, "-m", "jaxnav.train", *args, "--devices", "all", "--out", str(out),
             *extra]  # fmt: skip
 
@@ -136,7 +137,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--devices", type=int, default=2, help="devices, and processes of the run")
     p.add_argument("--splits", default="seeds,envs", help="comma-separated of seeds, envs")
-    p.add_argument("--deterministic", action="store_true", help="XLA deterministic GPU ops")
+    p.add_argument("--deterministic", action="store_true", help="XLA deterministic ops (GPUs)")
     p.add_argument("--train-args", default=DEFAULT_TRAIN_ARGS, help="jaxnav.train flags")
     p.add_argument("--out", type=Path, default=Path("benchmarks/results/multiprocess.json"))
     a = p.parse_args(argv)
