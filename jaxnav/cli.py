@@ -358,12 +358,7 @@ def train_seeds(
     """
     t0 = time.perf_counter()
     compiled = programs.compile_training(trainer, keys, programs.cache_directory())
-    init, interval, state_like, specs = (
-        compiled.init,
-        compiled.interval,
-        compiled.state_like,
-        compiled.specs,
-    )
+    init, interval, state_like = compiled.init, compiled.interval, compiled.state_like
     compile_s = time.perf_counter() - t0
     cached = " (traced programs from the cache)" if compiled.from_cache else ""
     print_primary(f"compiled in {compile_s:.1f}s{cached}", flush=True)
@@ -380,7 +375,7 @@ def train_seeds(
     if done:
         try:
             done, state, metrics, meta = checkpoints.restore(state_like, metrics)
-            state = sharding.place(state, trainer.mesh, specs)
+            state = sharding.place(state, trainer.mesh, sharding.state_specs(state_like))
         except Exception as e:  # orbax raises many kinds for a damaged or foreign checkpoint
             msg = f"{checkpoints.directory}: cannot restore checkpoint {done}: {e}"
             raise ValueError(msg.splitlines()[0]) from None

@@ -26,7 +26,6 @@ from typing import Any
 import jax
 import numpy as np
 
-from jaxnav import sharding
 from jaxnav.train import Trainer
 
 FORMAT = 1  # bump when what is stored changes
@@ -36,14 +35,12 @@ PACKAGES = ("jax", "jaxlib", "flax", "optax", "mujoco", "mujoco-mjx")
 @dataclasses.dataclass
 class TrainingPrograms:
     """``init(keys) -> state``; ``interval(state, log) -> (state, metrics)`` (state donated);
-    ``state_like`` the state's abstract values and ``specs`` its layout (``jaxnav.sharding``);
-    ``metrics_like`` one interval's abstract metrics; ``from_cache`` whether tracing was
-    skipped."""
+    ``state_like`` the state's abstract values (shapes, dtypes); ``metrics_like`` one
+    interval's abstract metrics; ``from_cache`` whether tracing was skipped."""
 
     init: Callable[..., Any]
     interval: Callable[..., Any]
     state_like: Any
-    specs: Any
     metrics_like: dict[str, jax.ShapeDtypeStruct]
     from_cache: bool
 
@@ -63,14 +60,14 @@ def compile_training(trainer: Trainer, keys: jax.Array, cache: Path | None) -> T
     # do, which one process's cache entry would not guarantee
     off = cache is None or jax.process_count() > 1
     directory = None if off else cache / _key(trainer, keys)
-    blob = _load(directory)
-    from_cache = blob is not None
-    if blob is None:
+    stored = _load(directory)
+    from_cache = stored is not None
+    if stored is None:
         blob = _trace(trainer, keys)
         _save(directory, blob)
-    # both runs compile the deserialized programs, so both run the same one (and the second
-    # finds it in XLA's cache)
-    stored = _from_blob(blob)
+        # both runs compile the deserialized programs, so both run the same one (and the
+        # second finds it in XLA's cache)
+        stored = _from_blob(blob)
     state_like, treedef = stored["state_like"], stored["treedef"]
     leaves_like = tuple(jax.tree.leaves(state_like))
     init, interval = stored["init"], stored["interval"]
@@ -91,7 +88,6 @@ def compile_training(trainer: Trainer, keys: jax.Array, cache: Path | None) -> T
         init=run_init,
         interval=run_interval,
         state_like=state_like,
-        specs=sharding.state_specs(state_like),
         metrics_like=flat_interval.out_info[1],
         from_cache=from_cache,
     )
@@ -172,16 +168,14 @@ def _from_blob(blob: dict[str, Any]) -> dict[str, Any]:
 
 
 def _load(directory: Path | None) -> dict[str, Any] | None:
-    """The stored blob, or ``None`` if there is none or it does not read back (a damaged or
-    foreign entry is traced again and replaced)."""
+    """The stored programs (``_from_blob``), or ``None`` if there are none or they do not
+    read back (a damaged or foreign entry is traced again and replaced)."""
     path = None if directory is None else directory / "programs.pkl"
     if path is None or not path.exists():
         return None
     try:
         with open(path, "rb") as f:
-            blob = pickle.load(f)
-        _from_blob(blob)
-        return blob
+            return _from_blob(pickle.load(f))
     except Exception:  # noqa: BLE001
         return None
 
