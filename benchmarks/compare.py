@@ -53,9 +53,10 @@ DEFAULT_ENVS = (
     "RobotRandom-v0 kinematic",
     *env_throughput.PEER_ENVS,
 )
-# ours -> (peer, the target ratio on one GPU, measured in the same run)
+# ours -> (peer, the target ratio on one GPU, measured in the same run; None: no target)
 PAIRS = {
     "GridMaze-v0": ("FourRooms-misc", 1.0),
+    env_throughput.ONEHOT: ("FourRooms-misc", None),
     "GridMaze-Random-v0": (NAVIX, 10.0),
     "RobotRandom-v0 mjx": (JAXMARL, 4.0),
     "RobotRandom-v0 kinematic": (JAXMARL, 300.0),
@@ -134,10 +135,12 @@ def env_tables(section: dict[str, Any]) -> str:
         for ours, peer in pairs:
             cells = [by_ratio.get((ours, n)) for n in sizes]
             text = " | ".join("-" if c is None else f"{c['ratio']:.2f}" for c in cells)
-            lines.append(f"| {ours} / {peer} | {text} | >= {PAIRS[ours][1]:g} |")
+            target = PAIRS[ours][1]
+            goal = "-" if target is None else f">= {target:g}"
+            lines.append(f"| {ours} / {peer} | {text} | {goal} |")
     if section["skipped"]:
         lines += ["", "Skipped: " + "; ".join(f"{k} ({v})" for k, v in section["skipped"].items())]
-    if section.get("out_of_memory"):
+    if section["out_of_memory"]:
         lines += ["", "Out of memory, left out: " + "; ".join(section["out_of_memory"])]
     return "\n".join(lines)
 

@@ -15,6 +15,7 @@ round by round, so load changes hit them alike and ratios stay meaningful. "peak
 XLA's peak memory of the compiled loop (``Compiled.memory_analysis``).
 
 Rows (``ROWS``): ``GridMaze-v0``, ``GridMaze-Random-v0`` (auto-reset ``env.step``),
+``GridMaze-v0 onehot`` (its observation one-hot encoded by the env: 66 int8 values, not 10),
 ``GridMaze-v0 step_env only`` (no time limit, no auto-reset: the cost of auto-reset is its
 ratio to GridMaze-v0), the robot ``RobotRandom-v0 mjx`` / ``RobotRandom-v0 kinematic`` (a
 random maze per episode, one backend each; ``RobotSimple-v0 ...`` too) and the peers, each
@@ -50,7 +51,8 @@ StepFn = Callable[[jax.Array, Any, jax.Array], tuple[jax.Array, Any, jax.Array]]
 ResetFn = Callable[[jax.Array], tuple[jax.Array, Any]]
 
 STEP_ENV_ONLY = "GridMaze-v0 step_env only"
-OUR_ENVS = ("GridMaze-v0", "GridMaze-Random-v0", STEP_ENV_ONLY)
+ONEHOT = "GridMaze-v0 onehot"
+OUR_ENVS = ("GridMaze-v0", ONEHOT, "GridMaze-Random-v0", STEP_ENV_ONLY)
 ROBOT_ENVS = tuple(
     f"{env} {backend}"
     for env in ("RobotRandom-v0", "RobotSimple-v0")
@@ -109,8 +111,11 @@ def build(name: str) -> tuple[ResetFn, StepFn, int]:
     if name in ROBOT_ENVS:
         env_id, backend = name.split(" ")
         env, params = jaxnav.make(env_id, backend=backend)
+    elif name in OUR_ENVS:
+        overrides = {"obs_mode": "onehot"} if name == ONEHOT else {}
+        env, params = jaxnav.make(name.split(" ")[0], **overrides)
     else:
-        env, params = jaxnav.make("GridMaze-v0" if name == STEP_ENV_ONLY else name)
+        raise ValueError(f"unknown row {name!r}; rows: {', '.join(ALL_ENVS)}")
     if name == STEP_ENV_ONLY:
 
         def step(key: jax.Array, state: Any, action: jax.Array) -> Any:

@@ -1,14 +1,14 @@
 """Our DQN against rejax's DQN on the same env, network, batch, replay ratio and step count.
 
-Both train on our ``GridMaze-v0`` (rejax through ``jaxnav.wrappers.GymnaxV0``, the gymnax 0.0.x
-API it expects) with one ``TrainConfig``: the same MLP (``hidden_sizes``, ReLU, dueling heads
-when ``dueling``), double-DQN targets when ``double``, ``num_envs`` envs, ``batch_size``, one
-gradient step per vectorized env step, ``buffer_size``, ``learning_starts`` random steps
-(rejax's ``fill_buffer``), a hard target copy every ``target_update_period`` env steps, gamma,
-Adam with the same linear learning-rate decay, and epsilon from ``eps_start`` to ``eps_end``
+Both train on our ``GridMaze-v0`` (rejax through ``jaxnav.wrappers.GymnaxV0``, the gymnax 0.0.x API
+it expects) with its ``onehot`` observation and one ``TrainConfig``: the same MLP (``hidden_sizes``,
+ReLU, dueling heads when ``dueling``), double-DQN targets when ``double``, ``num_envs`` envs,
+``batch_size``, one gradient step per vectorized env step, ``buffer_size``, ``learning_starts``
+random steps (rejax's ``fill_buffer``), a hard target copy every ``target_update_period`` env steps,
+gamma, Adam with the same linear learning-rate decay, and epsilon from ``eps_start`` to ``eps_end``
 over ``eps_decay_steps``. What stays rejax's own: its squared loss (ours: ``config.loss``),
-elementwise gradient clipping (ours: global norm), and its treatment of a time limit as
-terminal (``done``), as every gymnax-0.0.x trainer does.
+elementwise gradient clipping (ours: global norm), and its treatment of a time limit as terminal
+(``done``), as every gymnax-0.0.x trainer does.
 
 Each side is compiled once (reported apart: ``jit(...).lower(...).compile()``) as one
 logging interval of ``log_interval`` env steps (ours: ``Trainer.run(ts, i, 1)``, what the CLI
@@ -23,6 +23,7 @@ first reached ``threshold``; and the wall-time ratio rejax / ours.
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 import time
 from collections.abc import Callable
@@ -142,6 +143,11 @@ def measure(
 ) -> dict[str, Any]:
     """Train both sides interval by interval, in turn; see the module docstring."""
     trainer = Trainer(config)
+    if trainer.env.obs_onehot_sizes is not None:
+        # rejax's network reads observations as numbers: both sides get the one-hot encoding
+        # (ours would expand GridMaze's default ``index`` codes to it in the network)
+        config = dataclasses.replace(config, env_kwargs={**config.env_kwargs, "obs_mode": "onehot"})
+        trainer = Trainer(config)
     key = jax.random.key(seed)
     sides = [_our_side(trainer, key), _rejax_side(trainer, key)]
     success = _greedy_success(trainer, eval_episodes)

@@ -27,6 +27,7 @@ import numpy as np
 from jax.experimental import multihost_utils
 
 from jaxnav import programs, run_dir, sharding
+from jaxnav.agents import dqn
 from jaxnav.checkpoints import Checkpoints
 from jaxnav.config import MAX_STEPS, TrainConfig
 from jaxnav.evaluate import evaluate_seeds, mean_of
@@ -695,11 +696,14 @@ def evaluate_main(argv: Sequence[str] | None = None) -> int:
         config = dataclasses.replace(config, env=env or config.env, env_kwargs=env_kwargs)
         config.validate()
         trainer = Trainer(config)
-        want = (run_dir.load_network(args.run)["obs_size"],)
-        if trainer.env.observation_space().shape != want:
+        network = run_dir.load_network(args.run)
+        onehot = network.get("onehot_sizes")  # runs before it was saved had none
+        want = (network["obs_size"], None if onehot is None else tuple(onehot))
+        have = (trainer.obs_size, trainer.network.onehot_sizes)
+        if have != want:
             raise ValueError(
-                f"--env {config.env}: observations of shape "
-                f"{trainer.env.observation_space().shape} do not fit the run's network {want}"
+                f"--env {config.env}: observations {dqn.describe_input(*have)} do not fit the "
+                f"run's network {dqn.describe_input(*want)}"
             )
         out = args.out or args.run / "eval.json"
         if not out.parent.is_dir():

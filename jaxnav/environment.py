@@ -42,6 +42,10 @@ class Environment(Generic[StateT, ParamsT]):
     # auto-reset alone and saves a key split per step (random numbers dominate the cost
     # of a cheap step).
     stochastic_step: bool = True
+    # Per observation value, the number of categories a network should one-hot encode it
+    # into (0: use it as a number); None: use every value as a number. Compact observations
+    # (GridMaze's ``index``) keep env steps and replay small; ``QNetwork`` expands them.
+    obs_onehot_sizes: tuple[int, ...] | None = None
 
     @property
     def default_params(self) -> ParamsT:

@@ -25,6 +25,7 @@ import jax
 import numpy as np
 
 from jaxnav import run_dir
+from jaxnav.agents import dqn
 from jaxnav.cli import UsageError, _add_env_args, _fail, _Parser, enable_compilation_cache
 from jaxnav.environment import Environment, EnvParams
 from jaxnav.evaluate import Policy, play, random_policy
@@ -268,10 +269,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             env_trainer = Trainer(
                 dataclasses.replace(config, env=args.env or config.env, env_kwargs=kwargs)
             )
-            if env_trainer.obs_size != trainer.obs_size:
+            have, want = ((t.obs_size, t.network.onehot_sizes) for t in (env_trainer, trainer))
+            if have != want:
                 raise UsageError(
-                    f"--env {env_trainer.config.env}: observations of size "
-                    f"{env_trainer.obs_size} do not fit the run's network ({trainer.obs_size})"
+                    f"--env {env_trainer.config.env}: observations {dqn.describe_input(*have)} "
+                    f"do not fit the run's network {dqn.describe_input(*want)}"
                 )
         else:
             env_trainer = trainer

@@ -148,7 +148,8 @@ def load_config(run: Path) -> TrainConfig:
 
 
 def load_network(run: Path) -> dict[str, Any]:
-    """The network description saved with the run (sizes, flags, ``obs_size``)."""
+    """The network description saved with the run (sizes, flags, ``obs_size``,
+    ``onehot_sizes``)."""
     try:
         return json.loads((run / "config.json").read_text())["network"]
     except (OSError, KeyError, TypeError, json.JSONDecodeError) as e:
@@ -164,6 +165,7 @@ def config_document(config: TrainConfig, trainer: Any) -> dict[str, Any]:
             "hidden_sizes": list(config.hidden_sizes),
             "dueling": config.dueling,
             "obs_size": trainer.obs_size,
+            "onehot_sizes": trainer.network.onehot_sizes,
         },
         "environment": environment_info(),
     }

@@ -95,6 +95,7 @@ class Trainer:
             num_actions=self.env.num_actions,
             hidden_sizes=tuple(config.hidden_sizes),
             dueling=config.dueling,
+            onehot_sizes=self.env.obs_onehot_sizes,
         )
         self.obs_size = self.env.observation_space(self.env_params).shape[0]
         self._check_memory()
@@ -104,10 +105,12 @@ class Trainer:
         """``ValueError`` for sizes whose replay buffers and networks (params, target, two
         Adam moments) cannot fit in this machine's memory: refused before allocating."""
         c = self.config
-        sizes = (self.obs_size, *c.hidden_sizes, self.env.num_actions + 1)
+        first = dqn.input_size(self.obs_size, self.env.obs_onehot_sizes)
+        sizes = (first, *c.hidden_sizes, self.env.num_actions + 1)
         weights = sum((a + 1) * b for a, b in zip(sizes[:-1], sizes[1:], strict=False))
-        replay = c.buffer_rows * c.num_envs * (2 * self.obs_size + 4)
-        need = 4 * c.num_seeds * (replay + 4 * weights)
+        obs_bytes = self.obs_size * jnp.dtype(self.env.observation_space().dtype).itemsize
+        replay = c.buffer_rows * c.num_envs * (2 * obs_bytes + 4 * 4)
+        need = c.num_seeds * (replay + 4 * 4 * weights)
         have = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
         if need > have:
             raise ValueError(

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from functools import partial
 
 import chex
@@ -70,6 +71,23 @@ def test_dueling_head_with_hand_set_parameters():
     q = jax.jit(net.apply)({"params": p}, jax.random.normal(jax.random.key(1), (3, 2)))
     # V + A - mean(A) = 5 + [1, 2, 3, 6] - 3
     np.testing.assert_allclose(q, np.tile([3.0, 4.0, 5.0, 8.0], (3, 1)), atol=1e-6)
+
+
+def test_onehot_sizes_expand_index_observations_to_the_onehot_network():
+    """A network with ``onehot_sizes`` on compact codes is the same function, with the same
+    parameters, as the plain network on their one-hot encoding."""
+    sizes = (3, 0, 5, 0)
+    codes = jnp.array([[2, -4, 0, 1], [0, 7, 4, 0]], jnp.int8)
+    onehot = jnp.array([[0, 0, 1, -4, 1, 0, 0, 0, 0, 1], [1, 0, 0, 7, 0, 0, 0, 0, 1, 0]], jnp.int8)
+    np.testing.assert_array_equal(dqn.expand_onehot(codes, sizes), onehot)
+    assert dqn.input_size(4, sizes) == 10 and dqn.input_size(4, None) == 4
+    compact = dqn.QNetwork(NUM_ACTIONS, hidden_sizes=(8,), onehot_sizes=sizes)
+    plain = dqn.QNetwork(NUM_ACTIONS, hidden_sizes=(8,))
+    params = jax.jit(compact.init)(jax.random.key(0), jnp.zeros((1, 4)))
+    chex.assert_shape(params["params"]["Dense_0"]["kernel"], (10, 8))
+    np.testing.assert_array_equal(
+        jax.jit(compact.apply)(params, codes), jax.jit(plain.apply)(params, onehot)
+    )
 
 
 def test_plain_network_has_no_value_head():
@@ -354,6 +372,21 @@ def test_same_seed_is_bitwise_reproducible_and_seeds_differ(train_one, seed0_run
     ts1, metrics1 = seed1_run(train_one)
     assert not leaves_equal(ts0.params, ts1.params)
     assert not leaves_equal(metrics0["mean_return"], metrics1["mean_return"])
+
+
+def test_index_observation_trains_exactly_as_onehot(tiny_config, seed0_run):
+    """GridMaze's default ``index`` observation, one-hot encoded by the network, gives the
+    same run as the ``onehot`` observation, bit for bit, with a 10-value replay."""
+    from jaxnav.train import Trainer
+
+    assert tiny_config.env_kwargs.get("obs_mode", "index") == "index"
+    kwargs = {**tiny_config.env_kwargs, "obs_mode": "onehot"}
+    onehot = Trainer(dataclasses.replace(tiny_config, env_kwargs=kwargs))
+    ts, metrics = jax.jit(onehot.train)(jax.random.key(0))
+    chex.assert_shape(seed0_run[0].buffer.obs, (*ts.buffer.obs.shape[:2], 10))
+    assert ts.buffer.obs.shape[-1] == 4 * 5 + 4 + 2
+    assert leaves_equal(ts.params, seed0_run[0].params)
+    assert leaves_equal(metrics, seed0_run[1])
 
 
 def test_vmap_over_seeds_and_hparams(tiny_trainer, train_one, train_many, seed0_run):

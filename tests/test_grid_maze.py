@@ -15,6 +15,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import jaxnav
+from jaxnav.agents import dqn
 from jaxnav.envs import grid_maze as gm
 
 UP, DOWN, LEFT, RIGHT = 0, 1, 2, 3
@@ -48,10 +49,10 @@ def py_shortest(obstacles, start, goal) -> int:
 
 
 def robot_cell(obs, size: int) -> tuple[int, int]:
-    """(row, col) of the robot in an ``onehot`` observation."""
+    """(row, col) of the robot in an ``index`` observation (GridMaze-v0's default)."""
     obs = np.asarray(obs)
-    assert obs[:size].sum() == 1 and obs[size : 2 * size].sum() == 1
-    return int(obs[:size].argmax()), int(obs[size : 2 * size].argmax())
+    assert obs.shape == (10,) and 0 <= obs[:2].min() and obs[:2].max() < size
+    return int(obs[0]), int(obs[1])
 
 
 @functools.cache
@@ -105,6 +106,7 @@ def test_observation_shape_dtype_and_space(mode):
     env, params = jaxnav.make("GridMaze-v0", size=size, obstacle_density=0.2, obs_mode=mode)
     num_obstacles = int(np.asarray(params.bank.obstacles).sum())
     expected = {
+        "index": 4 + 4 + 2,
         "onehot": 4 * size + 4 + 2,
         "paper": 4 + 2 * num_obstacles,
         "sensor": (2 * 2 + 1) ** 2 + 4 + 2,
@@ -114,8 +116,8 @@ def test_observation_shape_dtype_and_space(mode):
     keys = jax.random.split(KEY, 16)
     obs, state = jit_env(env).vreset(keys, params)
     chex.assert_shape(obs, (16, expected))
-    # onehot holds bits and cell offsets, exact in int8 (4x less to write and store)
-    assert obs.dtype == (jnp.int8 if mode == "onehot" else jnp.float32) == space.dtype
+    # index and onehot hold cells, bits and cell offsets, exact in int8 (less to write, store)
+    assert obs.dtype == (jnp.int8 if mode in ("index", "onehot") else jnp.float32) == space.dtype
     actions = jax.random.randint(jax.random.key(1), (16,), 0, 4)
     obs2, *_ = jit_env(env).vstep(keys, state, actions, params)
     for o in np.concatenate([obs, obs2]):
@@ -132,8 +134,9 @@ def test_observation_contents_of_each_mode():
         env, params = jaxnav.make("GridMaze-v0", size=size, obstacle_density=0.0, obs_mode=mode)
         obs[mode] = np.asarray(start_at(env, params, start, goal)[0])
     offset = np.array([3, 4]) / (size - 1)  # (goal - robot) / (size - 1), (drow, dcol)
+    np.testing.assert_array_equal(obs["index"], [*start, *goal, 1, 0, 0, 0, 3, 4])
     o = obs["onehot"]
-    assert robot_cell(o, size) == start
+    assert o[:size].argmax() == 0 and o[size : 2 * size].argmax() == 2
     assert o[2 * size : 3 * size].argmax() == 3 and o[3 * size : 4 * size].argmax() == 6
     np.testing.assert_array_equal(o[4 * size : 4 * size + 4], [1, 0, 0, 0])  # only up blocked
     np.testing.assert_array_equal(o[-2:], [3, 4])  # (goal - robot) in cells
@@ -146,6 +149,39 @@ def test_observation_contents_of_each_mode():
     np.testing.assert_array_equal(window[2:], 0)
     np.testing.assert_allclose(s[25:29], np.array([0, 6, 2, 4]) / (size - 1))
     np.testing.assert_allclose(s[-2:], offset)
+
+
+@settings(max_examples=5, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1))
+def test_index_observation_is_the_onehot_one_before_encoding(maze, seed):
+    """``obs_onehot_sizes`` expands ``index`` observations to exactly the ``onehot`` ones,
+    after resets and after steps (neighbour bits and offsets change)."""
+    env, params = maze
+    onehot_env, _ = jaxnav.make("GridMaze-v0", **{**vars(env.config), "obs_mode": "onehot"})
+    assert onehot_env.obs_onehot_sizes is None
+    keys = jax.random.split(jax.random.key(seed), 64)
+    actions = jax.random.randint(jax.random.key(seed), (64,), 0, 4)
+
+    def observations(e):  # same keys, same states: only the encoding differs
+        obs, state = jit_env(e).vreset(keys, params)
+        return jnp.concatenate([obs, jit_env(e).vstep(keys, state, actions, params)[0]])
+
+    index = dqn.expand_onehot(observations(env), env.obs_onehot_sizes)
+    np.testing.assert_array_equal(index, observations(onehot_env))
+
+
+def test_large_grid_offsets_do_not_overflow():
+    """Above 128 cells a side, offsets leave int8's range; the observation widens to int16."""
+    env, params = jaxnav.make(
+        "GridMaze-v0", size=200, obstacle_density=0.0, random_layouts=True, num_layouts=1,
+        goals_per_layout=1, layout_seed=3
+    )  # fmt: skip
+    goal = np.asarray(params.bank.free_cells[0, params.bank.goal_slots[0, 0]])
+    start = (199 - goal[0], 199 - goal[1])  # far from the goal
+    obs, _ = start_at(env, params, start, tuple(goal))
+    assert obs.dtype == jnp.int16 == env.observation_space(params).dtype
+    np.testing.assert_array_equal(obs[:4], [*start, *goal])
+    np.testing.assert_array_equal(obs[-2:], goal - np.array(start))
 
 
 def test_paper_observation_lists_every_obstacle():

@@ -61,7 +61,7 @@ any_float = st.one_of(
 env_value = st.one_of(
     st.sampled_from(
         ['0', '1', '5', '7', '-1', '0.5', '1e9', 'NaN', 'Infinity', 'true', 'null', '[]', '{}',
-         '"x"', 'paper', 'onehot', 'sensor', 'kinematic', 'mjx', 'simple', 'random', '256']
+         '"x"', 'paper', 'index', 'onehot', 'sensor', 'kinematic', 'mjx', 'simple', 'random', '256']
     ),
     st.integers(-(10**7), 10**7).map(str),
     st.text(max_size=6),

@@ -22,8 +22,8 @@ def open_maze(max_steps: int = 60):
 
 
 def robot_cell(obs: jax.Array) -> tuple[int, int]:
-    """(row, col) of the robot in an ``onehot`` observation."""
-    return int(jnp.argmax(obs[:SIZE])), int(jnp.argmax(obs[SIZE : 2 * SIZE]))
+    """(row, col) of the robot in an ``index`` observation (GridMaze-v0's default)."""
+    return int(obs[0]), int(obs[1])
 
 
 def start_at(env: GymnaxV0, params, start, goal):

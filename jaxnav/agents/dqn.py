@@ -15,16 +15,47 @@ import jax.numpy as jnp
 from flax import struct
 
 
+def expand_onehot(obs: jax.Array, onehot_sizes: Sequence[int]) -> jax.Array:
+    """float32 ``obs`` with value i one-hot encoded into ``onehot_sizes[i]`` columns (kept as
+    one number where that is 0)."""
+    parts = [
+        jax.nn.one_hot(obs[..., i].astype(jnp.int32), n)
+        if n
+        else obs[..., i : i + 1].astype(jnp.float32)
+        for i, n in enumerate(onehot_sizes)
+    ]
+    return jnp.concatenate(parts, axis=-1)
+
+
+def input_size(obs_size: int, onehot_sizes: Sequence[int] | None) -> int:
+    """Width of the first layer's input for observations of ``obs_size`` values."""
+    return obs_size if onehot_sizes is None else sum(n or 1 for n in onehot_sizes)
+
+
+def describe_input(obs_size: int, onehot_sizes: Sequence[int] | None) -> str:
+    """What a network reads, for error messages: "(31,)" or "(10,) one-hot encoded to 26"."""
+    if onehot_sizes is None:
+        return f"({obs_size},)"
+    return f"({obs_size},) one-hot encoded to {input_size(obs_size, onehot_sizes)}"
+
+
 class QNetwork(nn.Module):
-    """MLP Q-network; the paper's is 512-256-128-64 with dueling heads."""
+    """MLP Q-network; the paper's is 512-256-128-64 with dueling heads.
+
+    ``onehot_sizes`` (an env's ``obs_onehot_sizes``) one-hot encodes compact observations
+    first; one-hot times a dense layer is an embedding lookup, the same function."""
 
     num_actions: int
     hidden_sizes: Sequence[int] = (512, 256, 128, 64)
     dueling: bool = True
+    onehot_sizes: tuple[int, ...] | None = None
 
     @nn.compact
     def __call__(self, obs: jax.Array) -> jax.Array:
-        x = obs.astype(jnp.float32)  # observations may be stored compactly (int8 on the grid)
+        if self.onehot_sizes is None:
+            x = obs.astype(jnp.float32)  # observations may be stored compactly (int8)
+        else:
+            x = expand_onehot(obs, self.onehot_sizes)
         for width in self.hidden_sizes:
             x = nn.relu(nn.Dense(width)(x))
         if not self.dueling:

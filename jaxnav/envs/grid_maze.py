@@ -19,10 +19,17 @@ Observation modes (all encode the paper's information: robot, goal and obstacle 
   divided by ``size - 1``. Obstacle lists are padded to the bank's largest by repeating the
   first obstacle (a duplicate adds no information); a layout without obstacles shows one at
   (0, 0), the same in every observation.
-- ``onehot`` (default of GridMaze-v0, chosen by measurement, see README): one-hot robot row,
-  robot column, goal row and goal column, whether each of the 4 neighbours is blocked, and
-  the goal's offset (drow, dcol) / (size - 1). For a fixed layout the obstacle coordinates
-  are constants, so the network learns them from the rewards instead of reading them.
+- ``onehot`` (chosen by measurement, see README): one-hot robot row, robot column, goal row
+  and goal column, whether each of the 4 neighbours is blocked, and the goal's offset
+  (drow, dcol) in cells, as int8 (int16 above size 128). For a fixed layout the obstacle
+  coordinates are constants, so the network learns them from the rewards instead of reading
+  them.
+- ``index`` (default of GridMaze-v0): the same information before one-hot encoding: robot
+  row, robot column, goal row, goal column, the 4 neighbour bits and the offset, 10 int8
+  values. ``env.obs_onehot_sizes`` says which values are categories, and jaxnav's
+  ``QNetwork`` expands them to the ``onehot`` vector, so a DQN learns exactly as with
+  ``onehot`` while the env writes, and replay stores, 10 bytes per observation instead of 66.
+  An MLP of your own should use ``onehot``.
 - ``sensor`` (default of GridMaze-Random-v0): what a robot with range sensors would see:
   the occupancy of the (2r+1)^2 window around the robot (off-grid counts as blocked), the
   free distance along each of the 4 grid directions / (size - 1), and the goal's offset.
@@ -45,7 +52,7 @@ from jaxnav.environment import Environment, EnvParams, EnvState
 # (drow, dcol) of the actions up, down, left, right
 ACTION_NAMES = ("up", "down", "left", "right")
 MOVES = np.array([[-1, 0], [1, 0], [0, -1], [0, 1]], dtype=np.int32)
-OBS_MODES = ("onehot", "paper", "sensor")
+OBS_MODES = ("index", "onehot", "paper", "sensor")
 UNREACHABLE = -1
 
 
@@ -59,7 +66,7 @@ class GridMazeConfig:
     random_layouts: bool = False
     num_layouts: int = 1024  # bank size when random_layouts
     goals_per_layout: int = 16  # goal cells per layout when random_layouts
-    obs_mode: str = "onehot"
+    obs_mode: str = "index"
     sensor_radius: int = 2
     max_steps: int = 60
     goal_reward: float = 4.0
@@ -334,13 +341,27 @@ class GridMaze(Environment[GridMazeState, GridMazeParams]):
         return len(ACTION_NAMES)
 
     def observation_space(self, params: GridMazeParams | None = None) -> spaces.Box:
-        if self.config.obs_mode == "onehot":  # bits and cell offsets: int8 is exact, 4x smaller
-            return spaces.Box(1 - self.size, self.size - 1, (self.obs_size,), jnp.int8)
+        if self.config.obs_mode in ("index", "onehot"):  # cells and bits: exact in integers
+            return spaces.Box(1 - self.size, self.size - 1, (self.obs_size,), self._int_dtype)
         return spaces.Box(-1.0, 1.0, (self.obs_size,), jnp.float32)
+
+    @property
+    def _int_dtype(self) -> Any:
+        """The smallest integer type that holds a cell offset, 1 - size .. size - 1."""
+        return jnp.int8 if self.size <= 128 else jnp.int16
+
+    @property
+    def obs_onehot_sizes(self) -> tuple[int, ...] | None:
+        """For ``index``: the number of categories of each value (0: a plain number)."""
+        if self.config.obs_mode != "index":
+            return None
+        return (self.size,) * 4 + (0,) * 6
 
     @property
     def obs_size(self) -> int:
         s, mode = self.size, self.config.obs_mode
+        if mode == "index":
+            return 4 + 4 + 2
         if mode == "onehot":
             return 4 * s + 4 + 2
         if mode == "paper":
@@ -430,18 +451,21 @@ class GridMaze(Environment[GridMazeState, GridMazeParams]):
             xy = lambda rc: rc[..., ::-1].astype(jnp.float32) * scale  # noqa: E731
             obs_cells = params.bank.obstacle_cells[state.layout]
             return jnp.concatenate([xy(state.pos), xy(state.goal), xy(obs_cells).ravel()])
-        if mode == "onehot":
+        if mode in ("index", "onehot"):
             bits = self._moves_blocked(params, state)
             neighbours = (bits >> jnp.arange(4, dtype=jnp.uint8)) & 1
-            # int8: the env's throughput is bound by writing observations (66 values each)
+            offset = state.goal - state.pos  # in cells
+            ints = self._int_dtype
+            if mode == "index":  # the env's throughput is bound by writing observations
+                return jnp.concatenate([state.pos, state.goal, neighbours, offset]).astype(ints)
             return jnp.concatenate(
                 [
-                    jax.nn.one_hot(state.pos[0], s, dtype=jnp.int8),
-                    jax.nn.one_hot(state.pos[1], s, dtype=jnp.int8),
-                    jax.nn.one_hot(state.goal[0], s, dtype=jnp.int8),
-                    jax.nn.one_hot(state.goal[1], s, dtype=jnp.int8),
-                    neighbours.astype(jnp.int8),
-                    (state.goal - state.pos).astype(jnp.int8),  # offset in cells
+                    jax.nn.one_hot(state.pos[0], s, dtype=ints),
+                    jax.nn.one_hot(state.pos[1], s, dtype=ints),
+                    jax.nn.one_hot(state.goal[0], s, dtype=ints),
+                    jax.nn.one_hot(state.goal[1], s, dtype=ints),
+                    neighbours.astype(ints),
+                    offset.astype(ints),
                 ]
             )
         r = self.config.sensor_radius
