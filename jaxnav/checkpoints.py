@@ -50,6 +50,19 @@ def _from_disk(tree: Any, like: Any) -> Any:
     return jax.tree.map(back, tree, like)
 
 
+def _check_like(restored: Any, abstract: Any) -> None:
+    """``ValueError`` naming the first array whose saved shape or dtype is not the one this
+    run expects (a checkpoint of another env, network or jaxnav version)."""
+    saved = jax.tree_util.tree_flatten_with_path(restored)[0]
+    for (path, got), want in zip(saved, jax.tree.leaves(abstract), strict=True):
+        if got.shape != want.shape or got.dtype != want.dtype:
+            raise ValueError(
+                f"{jax.tree_util.keystr(path)} was saved as {got.dtype}{list(got.shape)}, this "
+                f"run expects {want.dtype}{list(want.shape)} (a checkpoint of another env, "
+                "network or jaxnav version)"
+            )
+
+
 class Checkpoints:
     """``save(logs_done, state, metrics, meta)`` / ``restore(like_state, like_metrics)``.
 
@@ -106,6 +119,7 @@ class Checkpoints:
             ),
         )
         arrays = restored["arrays"]
+        _check_like(arrays, abstract)  # orbax restores what was saved, whatever the target
         state = _from_disk(arrays["state"], like_state)
         metrics = {k: np.array(arrays["metrics"][k]) for k in like_metrics}  # keep the order
         return step, state, metrics, restored["meta"]

@@ -163,6 +163,32 @@ def test_resume_refuses_other_flags_and_runs_it_cannot_continue(tmp_path, capsys
     assert "is complete" in refused(["--resume", str(complete)])
 
 
+def test_checkpoint_of_another_state_layout_is_refused_naming_the_array(tmp_path):
+    """A checkpoint whose arrays have other shapes (another jaxnav version's observation, say)
+    is refused with the array's name, not restored as saved and fed to the compiled run."""
+    from jaxnav.checkpoints import Checkpoints
+
+    metrics = {"loss": np.zeros((1, 4), np.float32)}
+    state = {"buffer": {"obs": np.zeros((1, 16, 4, 26), np.int8)}, "step": np.int32(3)}
+    saving = Checkpoints(tmp_path / "checkpoints", keep=1)
+    saving.save(1, state, metrics, {"seconds": {}})
+    saving.close()
+    like = {
+        "buffer": {"obs": jax.ShapeDtypeStruct((1, 16, 4, 10), jnp.int8)},
+        "step": state["step"],
+    }
+    restoring = Checkpoints(tmp_path / "checkpoints", keep=1)
+    with pytest.raises(
+        ValueError,
+        match=r"\['state'\]\['buffer'\]\['obs'\] was saved as "
+        r"int8\[1, 16, 4, 26\], this run expects int8\[1, 16, 4, 10\]",
+    ):
+        restoring.restore(like, metrics)
+    step, restored, _, _ = restoring.restore(state, metrics)  # the matching layout restores
+    assert step == 1 and restored["buffer"]["obs"].shape == (1, 16, 4, 26)
+    restoring.close()
+
+
 def test_resume_before_any_checkpoint_starts_over_with_the_saved_settings(tmp_path, capsys):
     out = unfinished_run(tmp_path, ["--total-timesteps", "128"])
     # the same flags may be repeated; the partial directory's name works as well as --out
