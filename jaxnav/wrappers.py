@@ -6,6 +6,10 @@ info)``. Trainers written for gymnax 0.0.x (rejax 0.1.x, PureJaxRL) unpack five,
 ``isinstance(space, gymnax.environments.spaces.Discrete)``. ``GymnaxV0`` gives them both, so
 they run on our environments unmodified.
 
+Their networks read observations as numbers: on GridMaze, make the env with
+``obs_mode="onehot"`` (the default ``index`` codes are meant for ``QNetwork``'s one-hot input,
+``env.obs_onehot_sizes``).
+
 Such trainers treat ``done`` as terminal and take the auto-reset ``obs`` as the next
 observation, so a time limit is learned as a terminal state. ``info`` keeps what a correct
 target needs: ``"terminated"``, ``"truncated"``, ``"discount"`` (``1 - terminated``, as

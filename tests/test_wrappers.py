@@ -133,7 +133,7 @@ def test_spaces_are_gymnax_instances():
 
 def test_rejax_dqn_trains_through_wrapper():
     rejax = pytest.importorskip("rejax")
-    env, params = jaxnav.make("GridMaze-v0", size=SIZE)
+    env, params = jaxnav.make("GridMaze-v0", size=SIZE, obs_mode="onehot")  # for rejax's MLP
     algo = rejax.DQN.create(
         env=GymnaxV0(env),
         env_params=params,
