@@ -20,6 +20,7 @@ import os
 import pickle
 import tempfile
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -72,10 +73,17 @@ def compile_training(trainer: Trainer, keys: jax.Array, cache: Path | None) -> T
     leaves_like = tuple(jax.tree.leaves(state_like))
     init, interval = stored["init"], stored["interval"]
     log_like = jax.ShapeDtypeStruct((), np.int32)
-    with jax.set_mesh(trainer.mesh):  # the device count the programs were exported for
-        flat_init = _jit_exported(init, trainer.mesh).lower(keys).compile()
+
+    def compile_init() -> Any:
+        with jax.set_mesh(trainer.mesh):  # the device count the programs were exported for
+            return _jit_exported(init, trainer.mesh).lower(keys).compile()
+
+    # XLA compiles outside the GIL: init compiles beside the interval, on a second core
+    with ThreadPoolExecutor(1) as pool, jax.set_mesh(trainer.mesh):
+        pending_init = pool.submit(compile_init)
         flat_interval = _jit_exported(interval, trainer.mesh, donate_argnums=0)
         flat_interval = flat_interval.lower(leaves_like, log_like).compile()
+        flat_init = pending_init.result()
 
     def run_init(keys: jax.Array) -> Any:
         return jax.tree.unflatten(treedef, flat_init(keys))
