@@ -699,12 +699,7 @@ def evaluate_main(argv: Sequence[str] | None = None) -> int:
         network = run_dir.load_network(args.run)
         onehot = network.get("onehot_sizes")  # runs before it was saved had none
         want = (network["obs_size"], None if onehot is None else tuple(onehot))
-        have = (trainer.obs_size, trainer.network.onehot_sizes)
-        if have != want:
-            raise ValueError(
-                f"--env {config.env}: observations {dqn.describe_input(*have)} do not fit the "
-                f"run's network {dqn.describe_input(*want)}"
-            )
+        dqn.check_input_fits(config.env, trainer.network_input, want)
         out = args.out or args.run / "eval.json"
         if not out.parent.is_dir():
             raise ValueError(f"--out {out}: directory {out.parent} does not exist")

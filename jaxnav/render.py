@@ -269,12 +269,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             env_trainer = Trainer(
                 dataclasses.replace(config, env=args.env or config.env, env_kwargs=kwargs)
             )
-            have, want = ((t.obs_size, t.network.onehot_sizes) for t in (env_trainer, trainer))
-            if have != want:
-                raise UsageError(
-                    f"--env {env_trainer.config.env}: observations {dqn.describe_input(*have)} "
-                    f"do not fit the run's network {dqn.describe_input(*want)}"
-                )
+            dqn.check_input_fits(
+                env_trainer.config.env, env_trainer.network_input, trainer.network_input
+            )
         else:
             env_trainer = trainer
     except (UsageError, ValueError, FileNotFoundError) as e:

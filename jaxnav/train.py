@@ -101,6 +101,11 @@ class Trainer:
         self._check_memory()
         self.mesh = sharding.make_mesh(config.num_seeds, config.devices)
 
+    @property
+    def network_input(self) -> dqn.InputSpec:
+        """What the network reads: ``(obs_size, onehot_sizes)``."""
+        return self.obs_size, self.network.onehot_sizes
+
     def _check_memory(self) -> None:
         """``ValueError`` for sizes whose replay buffers and networks (params, target, two
         Adam moments) cannot fit in this machine's memory: refused before allocating."""

@@ -32,11 +32,24 @@ def input_size(obs_size: int, onehot_sizes: Sequence[int] | None) -> int:
     return obs_size if onehot_sizes is None else sum(n or 1 for n in onehot_sizes)
 
 
-def describe_input(obs_size: int, onehot_sizes: Sequence[int] | None) -> str:
-    """What a network reads, for error messages: "(31,)" or "(10,) one-hot encoded to 26"."""
-    if onehot_sizes is None:
-        return f"({obs_size},)"
-    return f"({obs_size},) one-hot encoded to {input_size(obs_size, onehot_sizes)}"
+InputSpec = tuple[int, tuple[int, ...] | None]  # (obs_size, onehot_sizes): what a network reads
+
+
+def check_input_fits(env_id: str, have: InputSpec, want: InputSpec) -> None:
+    """``ValueError`` if ``env_id``'s observations (``have``) are not what a trained network
+    reads (``want``), e.g. "(10,) one-hot encoded to 30" for "(10,) one-hot encoded to 34"."""
+    if have == want:
+        return
+
+    def describe(obs_size: int, onehot_sizes: tuple[int, ...] | None) -> str:
+        if onehot_sizes is None:
+            return f"({obs_size},)"
+        return f"({obs_size},) one-hot encoded to {input_size(obs_size, onehot_sizes)}"
+
+    raise ValueError(
+        f"--env {env_id}: observations {describe(*have)} do not fit the run's network "
+        f"{describe(*want)}"
+    )
 
 
 class QNetwork(nn.Module):
