@@ -26,7 +26,7 @@ import socket
 import subprocess
 import sys
 import tempfile
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -49,6 +49,35 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+def launch(
+    train_args: Sequence[str], processes: int, env_of: Callable[[int], dict[str, str]]
+) -> list[subprocess.Popen]:
+    """``python -m jaxnav.train *train_args`` as one run of ``processes`` processes
+    (``jax.distributed`` on localhost), process ``i`` with environment ``env_of(i)``."""
+    coordinator = f"localhost:{_free_port()}"
+    return [
+        subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "jaxnav.train",
+                *train_args,
+                "--coordinator",
+                coordinator,
+                "--num-processes",
+                str(processes),
+                "--process-id",
+                str(i),
+            ],
+            env=env_of(i),
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )  # fmt: skip
+        for i in range(processes)
+    ]
+
+
 def _env(devices: int, visible: str | None, deterministic: bool, gpu: bool) -> dict[str, str]:
     env = {**os.environ, "JAXNAV_CACHE_DIR": ""}  # every run compiles its own program
     flags = env.get("XLA_FLAGS", "").split()
@@ -64,9 +93,8 @@ def _env(devices: int, visible: str | None, deterministic: bool, gpu: bool) -> d
     return env
 
 
-def _train(args: list[str], out: Path, extra: Sequence[str] = ()) -> list[str]:
-    return [sys.executable, "-m", "jaxnav.train", *args, "--devices", "all", "--out", str(out),
-            *extra]  # fmt: skip
+def _train_args(args: list[str], out: Path) -> list[str]:
+    return [*args, "--devices", "all", "--out", str(out)]
 
 
 def run_split(
@@ -76,32 +104,12 @@ def run_split(
     one = _env(devices, None, deterministic, gpu)
     outs = [tmp / f"{split}_one_{i}" for i in range(2)]
     for out in outs:
-        done = subprocess.run(_train(args, out), env=one, capture_output=True, text=True)
+        command = [sys.executable, "-m", "jaxnav.train", *_train_args(args, out)]
+        done = subprocess.run(command, env=one, capture_output=True, text=True)
         if done.returncode != 0:
             raise RuntimeError(f"one process exited {done.returncode}: {done.stderr[-2000:]}")
-    coordinator = f"localhost:{_free_port()}"
     multi = tmp / f"{split}_multi"
-    procs = [
-        subprocess.Popen(
-            _train(
-                args,
-                multi,
-                [
-                    "--coordinator",
-                    coordinator,
-                    "--num-processes",
-                    str(devices),
-                    "--process-id",
-                    str(i),
-                ],
-            ),
-            env=_env(1, str(i), deterministic, gpu),
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-        )  # fmt: skip
-        for i in range(devices)
-    ]
+    procs = launch(_train_args(args, multi), devices, lambda i: _env(1, str(i), deterministic, gpu))
     results = [p.communicate() for p in procs]
     for p, (_, err) in zip(procs, results, strict=True):
         if p.returncode != 0:

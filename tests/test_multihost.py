@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -17,45 +16,23 @@ import orbax.checkpoint as ocp
 import pytest
 from conftest import TINY_FLAGS
 
-from jaxnav import run_dir
-from jaxnav.cli import train_main
+ROOT = str(Path(__file__).resolve().parents[1])  # `benchmarks` is not installed; plain `pytest`
+if ROOT not in sys.path:
+    sys.path.insert(0, ROOT)
+
+from benchmarks import multiprocess  # noqa: E402
+from jaxnav import run_dir  # noqa: E402
+from jaxnav.cli import train_main  # noqa: E402
 
 FLAGS = [*TINY_FLAGS, "--eval-episodes", "4", "--devices", "all"]
 pytestmark = pytest.mark.xdist_group("multihost")  # two processes of their own
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("localhost", 0))
-        return s.getsockname()[1]
 
 
 def _launch(flags: list[str]) -> list[subprocess.Popen]:
     """The same command in two processes, one CPU device each."""
     env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=1"}
     env["JAXNAV_CACHE_DIR"] = ""
-    coordinator = f"localhost:{_free_port()}"
-    return [
-        subprocess.Popen(
-            [
-                sys.executable,
-                "-m",
-                "jaxnav.train",
-                *flags,
-                "--coordinator",
-                coordinator,
-                "--num-processes",
-                "2",
-                "--process-id",
-                str(i),
-            ],
-            env=env,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-        )  # fmt: skip
-        for i in range(2)
-    ]
+    return multiprocess.launch(flags, 2, lambda i: env)
 
 
 def _wait(procs: list[subprocess.Popen]) -> list[tuple[int, str, str]]:
