@@ -1,12 +1,14 @@
-"""Environment throughput: env steps/s of ``jax.lax.scan`` over ``vmap(env.step)``.
+"""Environment throughput: env steps/s of ``jax.lax.scan`` over a batched ``env.step``.
 
     python -m benchmarks.env_throughput [--num-envs 1,16,256,4096,16384] [--steps N]
         [--target-s S] [--out benchmarks/results/env_throughput.json] [--envs NAME,NAME,...]
 
-Each (env, num_envs) row jits one function that loops a given number of steps of the vmapped
-step with uniformly random actions (per-step action and key sampling included in the timing);
-the step count is an argument, so one compiled program serves every count. The loop carries
-the observation and sums the reward, so XLA cannot drop the observation computation.
+Each (env, num_envs) row jits one function that loops a given number of steps of the batched
+step (``vmap(step)``; for our envs their ``step_batch``, the same results with fresh episodes
+built only for the envs that ended) with uniformly random actions (per-step action and key
+sampling included in the timing); the step count is an argument, so one compiled program serves
+every count. The loop carries the observation and sums the reward, so XLA cannot drop the
+observation computation.
 "compile s" is trace + lower + XLA compile (``jit(f).lower(...).compile()``). Steps per timed
 run: ``--steps``, or fewer when one step takes long enough that ``--target-s`` seconds are
 reached sooner (timed once after the warm-up), so slow rows at large num_envs stay short.
@@ -34,8 +36,9 @@ import os
 import statistics
 import sys
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -46,7 +49,8 @@ from jax.sharding import PartitionSpec as P
 import jaxnav
 from benchmarks.common import compile_timed, machine_info, time_in_turn, write_results
 
-# (key, state, action) -> (obs, state, reward); one environment, vmapped by the benchmark
+# (key, state, action) -> (obs, state, reward): one environment, or (in ``Row.batch_step``)
+# a batch of them along the leading axis
 StepFn = Callable[[jax.Array, Any, jax.Array], tuple[jax.Array, Any, jax.Array]]
 ResetFn = Callable[[jax.Array], tuple[jax.Array, Any]]
 
@@ -67,8 +71,17 @@ DEFAULT_ENVS = OUR_ENVS + GYMNAX_ENVS
 DEFAULT_OUT = Path("benchmarks/results/env_throughput.json")
 
 
-def build(name: str) -> tuple[ResetFn, StepFn, int]:
-    """``(reset, step, num_actions)`` for one row name; peer rows import their library here."""
+class Row(NamedTuple):
+    reset: ResetFn
+    step: StepFn  # one environment
+    num_actions: int
+    # the batched step the row is timed with: ``vmap(step)``, or for our envs their
+    # ``step_batch`` (the same results, fresh episodes built only for the envs that ended)
+    batch_step: StepFn
+
+
+def build(name: str) -> Row:
+    """The ``Row`` of one row name; peer rows import their library here."""
     if name == NAVIX:
         import navix  # bench extra
 
@@ -82,7 +95,7 @@ def build(name: str) -> tuple[ResetFn, StepFn, int]:
             timestep = nenv.reset(key)
             return timestep.observation, timestep
 
-        return nreset, nstep, len(nenv.action_set)
+        return Row(nreset, nstep, len(nenv.action_set), jax.vmap(nstep))
     if name == JAXMARL:
         from jaxmarl.environments.jaxnav import JaxNav  # bench extra
 
@@ -97,7 +110,7 @@ def build(name: str) -> tuple[ResetFn, StepFn, int]:
             obs, state = menv.reset(key)
             return obs[agent], state
 
-        return mreset, mstep, menv.agent_action_space().n
+        return Row(mreset, mstep, menv.agent_action_space().n, jax.vmap(mstep))
     if name in GYMNAX_ENVS:
         import gymnax  # bench extra; may be absent
 
@@ -107,7 +120,7 @@ def build(name: str) -> tuple[ResetFn, StepFn, int]:
             obs, state, reward, _done, _info = genv.step(key, state, action, gparams)
             return obs, state, reward
 
-        return (lambda k: genv.reset(k, gparams)), gstep, genv.num_actions
+        return Row(lambda k: genv.reset(k, gparams), gstep, genv.num_actions, jax.vmap(gstep))
     if name in ROBOT_ENVS:
         env_id, backend = name.split(" ")
         env, params = jaxnav.make(env_id, backend=backend)
@@ -116,20 +129,26 @@ def build(name: str) -> tuple[ResetFn, StepFn, int]:
         env, params = jaxnav.make(name.split(" ")[0], **overrides)
     else:
         raise ValueError(f"unknown row {name!r}; rows: {', '.join(ALL_ENVS)}")
+    reset = partial(env.reset, params=params)
     if name == STEP_ENV_ONLY:
 
-        def step(key: jax.Array, state: Any, action: jax.Array) -> Any:
+        def step_env(key: jax.Array, state: Any, action: jax.Array) -> Any:
             obs, state, reward, _terminated, _info = env.step_env(key, state, action, params)
             return obs, state, reward
-    else:
 
-        def step(key: jax.Array, state: Any, action: jax.Array) -> Any:
-            obs, state, reward, _terminated, _truncated, _info = env.step(
-                key, state, action, params
-            )
-            return obs, state, reward
+        return Row(reset, step_env, env.num_actions, jax.vmap(step_env))
 
-    return (lambda k: env.reset(k, params)), step, env.num_actions
+    def step(key: jax.Array, state: Any, action: jax.Array) -> Any:
+        obs, state, reward, _terminated, _truncated, _info = env.step(key, state, action, params)
+        return obs, state, reward
+
+    def batch_step(keys: jax.Array, state: Any, action: jax.Array) -> Any:
+        obs, state, reward, _terminated, _truncated, _info = env.step_batch(
+            keys, state, action, params
+        )
+        return obs, state, reward
+
+    return Row(reset, step, env.num_actions, batch_step)
 
 
 def prepare(
@@ -142,10 +161,13 @@ def prepare(
 ) -> dict[str, Any]:
     """Compile one row's rollout; returns a record with ``run()`` that times one execution of
     ``steps`` steps, or fewer if one step takes so long that ``target_s`` is reached sooner.
-    With ``devices`` > 1 the envs are laid out evenly over that many devices and XLA
-    partitions the same program (no communication but the reward sum)."""
-    reset, step, num_actions = build(name)
-    vstep = jax.vmap(step)
+    With ``devices`` > 1 the envs are laid out evenly over that many devices, each stepping
+    its own (``shard_map``; no communication but the reward sum)."""
+    row = build(name)
+    mesh = Mesh(np.array(jax.devices()[:devices]), ("envs",))
+    vstep = row.batch_step
+    if devices > 1:  # each device steps (and, in ``step_batch``, resets) its own envs
+        vstep = jax.shard_map(vstep, mesh=mesh, in_specs=P("envs"), out_specs=P("envs"))
 
     def rollout(
         key: jax.Array, obs: jax.Array, state: Any, steps: jax.Array
@@ -154,15 +176,14 @@ def prepare(
             obs, state, total = carry
             k_act, k_step = jax.random.split(jax.random.fold_in(key, i))
             # one 32-bit word per action: randint draws two, doubling the harness cost
-            actions = (jax.random.bits(k_act, (num_envs,)) % num_actions).astype(jnp.int32)
+            actions = (jax.random.bits(k_act, (num_envs,)) % row.num_actions).astype(jnp.int32)
             obs, state, reward = vstep(jax.random.split(k_step, num_envs), state, actions)
             return obs, state, total + reward.astype(jnp.float32).sum()
 
         return jax.lax.fori_loop(0, steps, body, (obs, state, jnp.zeros((), jnp.float32)))
 
     k_reset, k_run = jax.random.split(jax.random.key(seed))
-    mesh = Mesh(np.array(jax.devices()[:devices]), ("envs",))
-    reset_all = jax.jit(jax.vmap(reset), out_shardings=NamedSharding(mesh, P("envs")))
+    reset_all = jax.jit(jax.vmap(row.reset), out_shardings=NamedSharding(mesh, P("envs")))
     obs, state = jax.block_until_ready(reset_all(jax.random.split(k_reset, num_envs)))
     program, compile_s = compile_timed(rollout, k_run, obs, state, jnp.int32(1))
     if target_s is not None:  # one step, warm: how many fit in target_s
@@ -274,9 +295,9 @@ def usable(names: list[str]) -> tuple[list[str], dict[str, str]]:
     ok, skipped = [], {}
     for name in names:
         try:
-            reset, step, _ = build(name)
-            obs, state = jax.eval_shape(reset, jax.random.key(0))
-            jax.eval_shape(step, jax.random.key(1), state, jnp.int32(0))
+            row = build(name)
+            obs, state = jax.eval_shape(row.reset, jax.random.key(0))
+            jax.eval_shape(row.step, jax.random.key(1), state, jnp.int32(0))
             ok.append(name)
         except Exception as e:  # a peer missing, or one that breaks on this jax
             print(f"note: {name} skipped ({type(e).__name__}: {e})", file=sys.stderr)

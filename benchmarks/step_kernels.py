@@ -3,12 +3,12 @@
     python -m benchmarks.step_kernels [--num-envs 65536] [--envs "GridMaze-v0,FourRooms-misc"]
         [--steps 100] [--out DIR]
 
-For each row of ``benchmarks.env_throughput`` (same ``build``): jit one auto-resetting step of
-``--num-envs`` envs with random actions, count the top-level operations of the compiled
-program that launch work (fusions, custom calls, gathers, scatters, sorts, reduces, copies,
-while loops), and time it alone (one call: mostly dispatch on a GPU) and as the body of a
-``--steps`` loop (per step; median of 5). With ``--out`` the compiled HLO of each row is
-written there.
+For each row of ``benchmarks.env_throughput`` (same ``build``): jit one auto-resetting batched
+step (``Row.batch_step``) of ``--num-envs`` envs with random actions, count the top-level
+operations of the compiled program that launch work (fusions, custom calls, gathers, scatters,
+sorts, reduces, copies, while loops), and time it alone (one call: mostly dispatch on a GPU) and
+as the body of a ``--steps`` loop (per step; median of 5). With ``--out`` the compiled HLO of
+each row is written there.
 """
 
 from __future__ import annotations
@@ -42,10 +42,9 @@ def main(argv: list[str] | None = None) -> int:
     )
     print("|---|---:|---:|---:|---:|---:|")
     for name in [e.strip() for e in args.envs.split(",") if e.strip()]:
-        reset, step, num_actions = build(name)
-        vstep = jax.vmap(step)
+        row = build(name)
 
-        def one_step(key, state, step=vstep, num_actions=num_actions):
+        def one_step(key, state, step=row.batch_step, num_actions=row.num_actions):
             k_act, k_step = jax.random.split(key)
             actions = (jax.random.bits(k_act, (n,)) % num_actions).astype(jnp.int32)
             return step(jax.random.split(k_step, n), state, actions)
@@ -54,7 +53,7 @@ def main(argv: list[str] | None = None) -> int:
             body = lambda i, s: one_step(jax.random.fold_in(key, i), s)[1]  # noqa: E731
             return jax.lax.fori_loop(0, args.steps, body, state)
 
-        _, state = jax.jit(jax.vmap(reset))(jax.random.split(jax.random.key(0), n))
+        _, state = jax.jit(jax.vmap(row.reset))(jax.random.split(jax.random.key(0), n))
         compiled = jax.jit(one_step).lower(jax.random.key(1), state).compile()
         looped = jax.jit(loop).lower(jax.random.key(1), state).compile()
         text = compiled.as_text()

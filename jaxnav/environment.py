@@ -46,6 +46,11 @@ class Environment(Generic[StateT, ParamsT]):
     # into (0: use it as a number); None: use every value as a number. Compact observations
     # (GridMaze's ``index``) keep env steps and replay small; ``QNetwork`` expands them.
     obs_onehot_sizes: tuple[int, ...] | None = None
+    # ``step_batch`` builds fresh episodes for at most this fraction of a batch per step (the
+    # envs whose episode ended), not for every env followed by a select. It pays where
+    # ``reset_env`` is costly and episodes are long (the robot's ray casts), not where most
+    # steps end an episode somewhere in a batch (grid). 1.0: reset every env and select.
+    batch_reset_fraction: float = 1.0
 
     @property
     def default_params(self) -> ParamsT:
@@ -94,21 +99,74 @@ class Environment(Generic[StateT, ParamsT]):
         A time limit sets ``truncated`` only: it is not a terminal state for value targets.
         """
         params = self.default_params if params is None else params
-        if self.stochastic_step:
-            key_step, key_reset = jax.random.split(key)
-        else:
-            key_step = key_reset = key
-        obs_step, state_step, reward, terminated, info = self.step_env(
-            key_step, state, action, params
-        )
-        terminated = jnp.asarray(terminated, dtype=bool)
-        truncated = jnp.logical_and(
-            state_step.time >= params.max_steps_in_episode, jnp.logical_not(terminated)
+        key_reset, obs_step, state_step, reward, terminated, truncated, info = self._transition(
+            key, state, action, params
         )
         done = jnp.logical_or(terminated, truncated)
         _, state_reset = self.reset_env(key_reset, params)  # its obs is unused: XLA drops it
         state = jax.tree.map(lambda r, s: jnp.where(done, r, s), state_reset, state_step)
-        obs = self.get_obs(state, params)
-        info = dict(info)
         info["final_observation"] = obs_step
-        return obs, state, jnp.asarray(reward, jnp.float32), terminated, truncated, info
+        return self.get_obs(state, params), state, reward, terminated, truncated, info
+
+    def step_batch(
+        self,
+        keys: jax.Array,
+        state: StateT,
+        action: jax.Array,
+        params: ParamsT | None = None,
+    ) -> tuple[jax.Array, StateT, jax.Array, jax.Array, jax.Array, dict[str, Any]]:
+        """``jax.vmap(self.step)`` over the leading axis of ``keys``, ``state`` and ``action``
+        (``params`` shared), with the same results bit for bit, but fresh episodes built only
+        for envs whose episode ended: at most ``batch_reset_fraction`` of the batch per step,
+        every env (and a select) on a step where more end.
+
+        For the top level: under another ``vmap`` (over seeds, say) the choice between the
+        two becomes a select, both run, and this is no faster than ``vmap(step)``.
+        """
+        params = self.default_params if params is None else params
+        num = keys.shape[0]
+        budget = int(num * self.batch_reset_fraction)
+        if budget >= num:
+            return jax.vmap(self.step, in_axes=(0, 0, 0, None))(keys, state, action, params)
+        budget = max(budget, 1)
+        key_reset, obs_step, state_step, reward, terminated, truncated, info = jax.vmap(
+            self._transition, in_axes=(0, 0, 0, None)
+        )(keys, state, action, params)
+        done = jnp.logical_or(terminated, truncated)
+        reset_all = jax.vmap(self.reset_env, in_axes=(0, None))
+
+        def reset_ended(state_step: StateT) -> StateT:
+            # the first ``budget`` ended envs; the index ``num`` pads and is dropped by the set
+            idx = jnp.nonzero(done, size=budget, fill_value=num)[0]
+            _, fresh = reset_all(key_reset[jnp.minimum(idx, num - 1)], params)
+            return jax.tree.map(lambda s, f: s.at[idx].set(f, mode="drop"), state_step, fresh)
+
+        def reset_every(state_step: StateT) -> StateT:
+            _, fresh = reset_all(key_reset, params)
+
+            def select(f: jax.Array, s: jax.Array) -> jax.Array:
+                return jnp.where(done.reshape(done.shape + (1,) * (s.ndim - 1)), f, s)
+
+            return jax.tree.map(select, fresh, state_step)
+
+        state = jax.lax.cond(done.sum() <= budget, reset_ended, reset_every, state_step)
+        info["final_observation"] = obs_step
+        obs = jax.vmap(self.get_obs, in_axes=(0, None))(state, params)
+        return obs, state, reward, terminated, truncated, info
+
+    def _transition(
+        self, key: jax.Array, state: StateT, action: jax.Array, params: ParamsT
+    ) -> tuple[jax.Array, jax.Array, StateT, jax.Array, jax.Array, jax.Array, dict[str, Any]]:
+        """``step_env`` plus the time limit: ``(key_reset, obs, state, reward, terminated,
+        truncated, info)`` before any reset."""
+        if self.stochastic_step:
+            key_step, key_reset = jax.random.split(key)
+        else:
+            key_step = key_reset = key
+        obs, state, reward, terminated, info = self.step_env(key_step, state, action, params)
+        terminated = jnp.asarray(terminated, dtype=bool)
+        truncated = jnp.logical_and(
+            state.time >= params.max_steps_in_episode, jnp.logical_not(terminated)
+        )
+        reward = jnp.asarray(reward, jnp.float32)
+        return key_reset, obs, state, reward, terminated, truncated, dict(info)
