@@ -30,6 +30,11 @@ class EnvParams:
     max_steps_in_episode: int = 60
 
 
+# On a GPU, ``step_batch``'s compaction (index gathers and scatters) costs more than the resets
+# it saves in smaller batches. One H200, RobotSimple-v0 / RobotRandom-v0 kinematic, against
+# vmap(step): 0.88x / 1.02x at 65,536 envs, 0.99x / 1.13x at 131,072, 1.10x / 1.25x at 262,144
+ACCELERATOR_MIN_BATCH = 2**17
+
 StateT = TypeVar("StateT", bound=EnvState)
 ParamsT = TypeVar("ParamsT", bound=EnvParams)
 
@@ -118,7 +123,8 @@ class Environment(Generic[StateT, ParamsT]):
         """``jax.vmap(self.step)`` over the leading axis of ``keys``, ``state`` and ``action``
         (``params`` shared), with the same results bit for bit, but fresh episodes built only
         for envs whose episode ended: at most ``batch_reset_fraction`` of the batch per step,
-        every env (and a select) on a step where more end.
+        every env (and a select) on a step where more end. On an accelerator, batches smaller
+        than ``ACCELERATOR_MIN_BATCH`` take ``vmap(step)``, which is faster there.
 
         For the top level: under another ``vmap`` (over seeds, say) the choice between the
         two becomes a select, both run, and this is no faster than ``vmap(step)``.
@@ -126,7 +132,7 @@ class Environment(Generic[StateT, ParamsT]):
         params = self.default_params if params is None else params
         num = keys.shape[0]
         budget = int(num * self.batch_reset_fraction)
-        if budget >= num:
+        if budget >= num or (jax.default_backend() != "cpu" and num < ACCELERATOR_MIN_BATCH):
             return jax.vmap(self.step, in_axes=(0, 0, 0, None))(keys, state, action, params)
         budget = max(budget, 1)
         key_reset, obs_step, state_step, reward, terminated, truncated, info = jax.vmap(
