@@ -126,3 +126,20 @@ def run_sharded(trainer: Trainer, keys: jax.Array, num_logs: int | None = None):
         state, metrics = interval(state, np.int32(log))
         chunks.append(jax.device_get(metrics))
     return state, {k: np.concatenate([c[k] for c in chunks], axis=1) for k in chunks[0]}
+
+
+def random_rollout(step, env, params, key: jax.Array, num_envs: int, steps: int):
+    """Per-step outputs of the batched ``step(keys, states, actions, params)``
+    (``vmap(env.step)`` or ``env.step_batch``) over ``steps`` steps of uniformly random
+    actions from ``num_envs`` fresh episodes. Traceable: jit it."""
+    k_reset, k_run = jax.random.split(key)
+    keys = jax.random.split(k_reset, num_envs)
+    _, state = jax.vmap(env.reset, in_axes=(0, None))(keys, params)
+
+    def body(state, key):
+        k_act, k_step = jax.random.split(key)
+        action = jax.random.randint(k_act, (num_envs,), 0, env.num_actions)
+        out = step(jax.random.split(k_step, num_envs), state, action, params)
+        return out[1], out
+
+    return jax.lax.scan(body, state, jax.random.split(k_run, steps))[1]

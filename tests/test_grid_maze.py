@@ -11,6 +11,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import random_rollout
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -375,21 +376,8 @@ def test_reset_gives_valid_reachable_episode(random_maze, seed):
 
 @functools.cache
 def _rollout_fn(env, n, steps):
-    def rollout(key, params):
-        k_reset, k_run = jax.random.split(key)
-        _, state = jax.vmap(env.reset, in_axes=(0, None))(jax.random.split(k_reset, n), params)
-
-        def body(state, key):
-            k_act, k_step = jax.random.split(key)
-            action = jax.random.randint(k_act, (n,), 0, env.num_actions)
-            out = jax.vmap(env.step, in_axes=(0, 0, 0, None))(
-                jax.random.split(k_step, n), state, action, params
-            )
-            return out[1], out
-
-        return jax.lax.scan(body, state, jax.random.split(k_run, steps))[1]
-
-    return jax.jit(rollout)
+    vstep = jax.vmap(env.step, in_axes=(0, 0, 0, None))
+    return jax.jit(lambda key, params: random_rollout(vstep, env, params, key, n, steps))
 
 
 @pytest.mark.parametrize("env_fixture", ["maze", "random_maze"])  # GridMaze-v0, -Random-v0

@@ -9,6 +9,7 @@ import chex
 import jax
 import numpy as np
 import pytest
+from conftest import random_rollout
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -26,21 +27,12 @@ def rollouts(env_id: str, fraction: float, **overrides):
     batched.batch_reset_fraction = fraction  # an instance setting, as a user may tune it
     vstep = jax.vmap(env.step, in_axes=(0, 0, 0, None))
 
-    def rollout(step, key):
-        k_reset, k_run = jax.random.split(key)
-        obs, s = jax.vmap(env.reset, in_axes=(0, None))(jax.random.split(k_reset, NUM_ENVS), params)
-
-        def body(s, k):
-            ka, ks = jax.random.split(k)
-            a = jax.random.randint(ka, (NUM_ENVS,), 0, env.num_actions)
-            out = step(jax.random.split(ks, NUM_ENVS), s, a, params)
-            return out[1], out
-
-        return jax.lax.scan(body, s, jax.random.split(k_run, STEPS))[1]
-
     @jax.jit
     def run(key):
-        return rollout(vstep, key), rollout(batched.step_batch, key)
+        return tuple(
+            random_rollout(step, env, params, key, NUM_ENVS, STEPS)
+            for step in (vstep, batched.step_batch)
+        )
 
     return run, max(1, int(NUM_ENVS * fraction))
 
