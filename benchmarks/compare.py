@@ -8,12 +8,12 @@
 Sections (each can be left out with ``--sections``):
 
 - ``env``: env steps/s of random actions for our envs and the peers', each through its own
-  ``make`` and auto-resetting ``step``, jit + vmap + a loop of steps, rows of one num_envs timed
-  in turn (``benchmarks.env_throughput``: compile time apart, XLA's peak memory per program).
-  Ratios pair each of ours with the peer it is measured against: GridMaze-v0 / gymnax
-  FourRooms-misc, GridMaze-Random-v0 / navix FourRooms (both draw a new layout per episode),
-  and the robot (MJX and kinematic backends, a random maze per episode) / jaxmarl's JaxNav
-  with one agent. A PNG plots steps/s against num_envs.
+  ``make`` and auto-resetting ``step`` (``vmap`` of it; ours: ``step_batch``, the same results),
+  jit + a loop of steps, rows of one num_envs timed in turn (``benchmarks.env_throughput``:
+  compile time apart, XLA's peak memory per program). Ratios pair each of ours with the peer it
+  is measured against: GridMaze-v0 / gymnax FourRooms-misc, GridMaze-Random-v0 / navix FourRooms
+  (both draw a new layout per episode), and the robot (MJX and kinematic backends, a random maze
+  per episode) / jaxmarl's JaxNav with one agent. A PNG plots steps/s against num_envs.
 - ``train``: our DQN against rejax's on GridMaze-v0 with the same network, batch, replay ratio
   and steps (``benchmarks.train_vs_rejax``): wall time, the ratio, time to a greedy success
   threshold, compile time apart. The config is the CLI's default (the paper's grid
