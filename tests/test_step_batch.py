@@ -54,3 +54,11 @@ def test_step_batch_equals_vmapped_step(env_id, fraction, overrides, seed):
     # short episodes: some steps end more episodes than the budget (every env reset, then
     # a select), others fewer (only the ended ones reset)
     assert (ended > budget).any() and ((ended > 0) & (ended <= budget)).any()
+
+
+def test_step_batch_under_an_outer_vmap_equals_vmapped_step():
+    """Over seeds (an outer ``vmap``, as the trainer runs): both paths run and are selected
+    per seed, and the results are still those of ``vmap(step)``."""
+    run, _ = rollouts("RobotRandom-v0", 1 / 16, backend="kinematic", max_steps=12)
+    want, got = jax.vmap(run)(jax.random.split(jax.random.key(7), 3))
+    chex.assert_trees_all_equal(got, want)
