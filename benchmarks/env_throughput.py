@@ -72,6 +72,8 @@ DEFAULT_OUT = Path("benchmarks/results/env_throughput.json")
 
 
 class Row(NamedTuple):
+    """How one benchmark row resets and steps its env."""
+
     reset: ResetFn
     step: StepFn  # one environment
     num_actions: int
