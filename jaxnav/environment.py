@@ -108,8 +108,7 @@ class Environment(Generic[StateT, ParamsT]):
             key, state, action, params
         )
         done = jnp.logical_or(terminated, truncated)
-        _, state_reset = self.reset_env(key_reset, params)  # its obs is unused: XLA drops it
-        state = jax.tree.map(lambda r, s: jnp.where(done, r, s), state_reset, state_step)
+        state = self._auto_reset(key_reset, done, state_step, params)
         info["final_observation"] = obs_step
         return self.get_obs(state, params), state, reward, terminated, truncated, info
 
@@ -139,26 +138,29 @@ class Environment(Generic[StateT, ParamsT]):
             self._transition, in_axes=(0, 0, 0, None)
         )(keys, state, action, params)
         done = jnp.logical_or(terminated, truncated)
-        reset_all = jax.vmap(self.reset_env, in_axes=(0, None))
 
         def reset_ended(state_step: StateT) -> StateT:
             # the first ``budget`` ended envs; the index ``num`` pads and is dropped by the set
             idx = jnp.nonzero(done, size=budget, fill_value=num)[0]
-            _, fresh = reset_all(key_reset[jnp.minimum(idx, num - 1)], params)
+            keys_ended = key_reset[jnp.minimum(idx, num - 1)]
+            _, fresh = jax.vmap(self.reset_env, in_axes=(0, None))(keys_ended, params)
             return jax.tree.map(lambda s, f: s.at[idx].set(f, mode="drop"), state_step, fresh)
 
         def reset_every(state_step: StateT) -> StateT:
-            _, fresh = reset_all(key_reset, params)
-
-            def select(f: jax.Array, s: jax.Array) -> jax.Array:
-                return jnp.where(done.reshape(done.shape + (1,) * (s.ndim - 1)), f, s)
-
-            return jax.tree.map(select, fresh, state_step)
+            auto_reset = jax.vmap(self._auto_reset, in_axes=(0, 0, 0, None))
+            return auto_reset(key_reset, done, state_step, params)
 
         state = jax.lax.cond(done.sum() <= budget, reset_ended, reset_every, state_step)
         info["final_observation"] = obs_step
         obs = jax.vmap(self.get_obs, in_axes=(0, None))(state, params)
         return obs, state, reward, terminated, truncated, info
+
+    def _auto_reset(
+        self, key_reset: jax.Array, done: jax.Array, state: StateT, params: ParamsT
+    ) -> StateT:
+        """``state``, or a fresh episode's state where ``done``."""
+        _, state_reset = self.reset_env(key_reset, params)  # its obs is unused: XLA drops it
+        return jax.tree.map(lambda r, s: jnp.where(done, r, s), state_reset, state)
 
     def _transition(
         self, key: jax.Array, state: StateT, action: jax.Array, params: ParamsT
