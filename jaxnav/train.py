@@ -110,7 +110,7 @@ class Trainer:
         """``ValueError`` for sizes whose replay buffers and networks (params, target, two
         Adam moments) cannot fit in this machine's memory: refused before allocating."""
         c = self.config
-        first = dqn.input_size(self.obs_size, self.env.obs_onehot_sizes)
+        first = dqn.input_size(*self.network_input)
         sizes = (first, *c.hidden_sizes, self.env.num_actions + 1)
         weights = sum((a + 1) * b for a, b in zip(sizes[:-1], sizes[1:], strict=False))
         obs_bytes = self.obs_size * jnp.dtype(self.env.observation_space().dtype).itemsize
