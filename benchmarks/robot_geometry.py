@@ -75,7 +75,7 @@ def build(kind: str, substeps: int) -> Callable[..., Any]:
     angles = g.laser_angles()
 
     def lasers(pose, cmd, c, h, a):
-        ranges = g.lasers(pose, c, h, a, angles, MAX_RANGE)
+        ranges = g.lasers(pose, *g.box_bounds(c, h, a), angles, MAX_RANGE)
         nudged = pose + jnp.array([1e-3, -1e-3, 1e-2], jnp.float32)  # a new pose every step
         return nudged, ranges.sum()
 
@@ -85,7 +85,7 @@ def build(kind: str, substeps: int) -> Callable[..., Any]:
 
     def both(pose, cmd, c, h, a):
         new, checksum = step(pose, cmd, c, h, a)
-        return new, checksum + g.lasers(new, c, h, a, angles, MAX_RANGE).sum()
+        return new, checksum + g.lasers(new, *g.box_bounds(c, h, a), angles, MAX_RANGE).sum()
 
     return {"lasers": lasers, "kinematic step": step, "step + lasers": both}[kind]
 

@@ -133,8 +133,16 @@ unit_angle = st.floats(-math.pi, math.pi, allow_subnormal=False)
 
 
 # ------------------------------------------------------------------ jitted functions
-_rays = jax.jit(g.ray_box_distances, static_argnames=())
-_lasers = jax.jit(g.lasers)
+def boxes_rays(o, dirs, centers, halves, active, max_range):
+    return g.ray_box_distances(o, dirs, *g.box_bounds(centers, halves, active), max_range)
+
+
+def boxes_lasers(pose, centers, halves, active, angles, max_range):
+    return g.lasers(pose, *g.box_bounds(centers, halves, active), angles, max_range)
+
+
+_rays = jax.jit(boxes_rays)
+_lasers = jax.jit(boxes_lasers)
 _pen = jax.jit(g.circle_box_penetration)
 _step = jax.jit(g.unicycle_step)
 _move = jax.jit(g.move_with_walls, static_argnames="substeps")
@@ -195,7 +203,7 @@ def test_rays_bulk_random_scenes_vmapped():
     active = (rng.random((n, W)) < 0.8) & ~around
     theta = rng.uniform(-np.pi, np.pi, n).astype(np.float32)
     poses = np.concatenate([origins, theta[:, None]], axis=1)
-    vl = jax.jit(jax.vmap(g.lasers, in_axes=(0, 0, 0, 0, None, None)))
+    vl = jax.jit(jax.vmap(boxes_lasers, in_axes=(0, 0, 0, 0, None, None)))
     got = np.asarray(vl(poses, centers, halves, active, g.laser_angles(), MAX_RANGE))
     compared = 0
     for i in range(n):
@@ -216,8 +224,15 @@ def test_rays_axis_aligned_grazing_inside_and_inactive():
     dirs = np.concatenate([AXES, [[0.6, 0.8]]]).astype(np.float32)
     got = np.asarray(_rays(np.zeros(2, np.float32), dirs, c, h, active, MAX_RANGE))
     np.testing.assert_array_equal(got, [1.5, MAX_RANGE, MAX_RANGE, 2.75, MAX_RANGE])
-    # along the top face (y = 0.5 exactly, direction (1, 0)): the face is hit at its corner
+    # exactly along a face, direction (1, 0) counts as tilted up by 1e-12: it enters the
+    # box along its bottom face (y = -0.5), at the corner, and leaves it along its top face
+    got = _rays(np.array([0.0, -0.5], np.float32), AXES[:1], c, h, active, MAX_RANGE)
+    assert float(got[0]) == 1.5
     got = _rays(np.array([0.0, 0.5], np.float32), AXES[:1], c, h, active, MAX_RANGE)
+    assert float(got[0]) == MAX_RANGE
+    # the same for -0.0 components: (-1, -0.0) counts as tilted down, along the top face
+    left = np.array([[-1.0, -0.0]], np.float32)
+    got = _rays(np.array([4.0, 0.5], np.float32), left, c, h, active, MAX_RANGE)
     assert float(got[0]) == 1.5
     # just above the face: a miss, exactly max_range
     got = _rays(np.array([0.0, 0.5001], np.float32), AXES[:1], c, h, active, MAX_RANGE)
@@ -232,7 +247,7 @@ def test_rays_axis_aligned_grazing_inside_and_inactive():
 
 
 def test_rays_zero_wall_slots_and_gradient_finite():
-    got = g.ray_box_distances(
+    got = boxes_rays(
         jnp.zeros(2),
         jnp.asarray(AXES),
         jnp.zeros((0, 2)),
@@ -242,7 +257,7 @@ def test_rays_zero_wall_slots_and_gradient_finite():
     )
     np.testing.assert_array_equal(got, np.full(4, 5.0))
     c, h, a = jnp.array([[2.0, 0.0]]), jnp.array([[0.5, 0.5]]), jnp.array([True])
-    grad = jax.grad(lambda o: g.ray_box_distances(o, jnp.asarray(AXES), c, h, a, 10.0).sum())
+    grad = jax.grad(lambda o: boxes_rays(o, jnp.asarray(AXES), c, h, a, 10.0).sum())
     assert np.all(np.isfinite(np.asarray(grad(jnp.zeros(2)))))
 
 
@@ -471,7 +486,7 @@ def test_jit_vmap_4096_traces_once_and_finite():
     @chex.assert_max_traces(n=1)
     def batch(pose, v, omega, centers, halves, active):
         def one(p, v, w, c, h, a):
-            ranges = g.lasers(p, c, h, a, g.laser_angles(), MAX_RANGE)
+            ranges = boxes_lasers(p, c, h, a, g.laser_angles(), MAX_RANGE)
             moved = g.move_with_walls(p, v, w, DT, RADIUS, c, h, a, substeps=SUBSTEPS)
             return ranges, g.circle_box_penetration(p[:2], RADIUS, c, h, a), moved
 

@@ -397,7 +397,13 @@ class RobotNav(Environment[RobotState, RobotParams]):
 
     def lasers(self, pose: jax.Array, layout: jax.Array, params: RobotParams) -> jax.Array:
         """Laser ranges in metres (not normalized)."""
-        return geometry.lasers(pose, *self._walls(params, layout), self.angles, LASER_SCALE)
+        # corners of the whole bank's boxes: the same every step, so XLA computes them once
+        w = params.bank.walls
+        lo, hi = geometry.box_bounds(w.center, w.half_size, w.active)
+        ranges = geometry.lasers(pose, lo[layout], hi[layout], self.angles, LASER_SCALE)
+        # materialized: fused into the frame's concatenation, the casts ran 1-8% slower on an
+        # H200 (65,536 to 1,048,576 envs)
+        return jax.lax.optimization_barrier(ranges)
 
     def _frame(self, pose, goal, layout, params) -> jax.Array:
         arena = jnp.asarray(self.arena)
