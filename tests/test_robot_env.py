@@ -130,6 +130,23 @@ def test_frames_stack_oldest_first_and_lasers_normalized(simple):
     assert np.all((frames[:, :NUM_LASERS] >= 0) & (frames[:, :NUM_LASERS] <= 1))
 
 
+def test_lasers_read_each_episodes_own_maze():
+    """With a bank of random mazes, an episode's lasers are the casts against its own maze's
+    walls: the bank's box corners are indexed by the episode's layout."""
+    env, params = jaxnav.make("RobotRandom-v0", backend="kinematic", num_layouts=6)
+    ranges = []
+    for layout, maze in enumerate(env.config.load_mazes()):
+        walls = maze.walls(env.num_wall_slots)
+        lo, hi = geometry.box_bounds(walls.center, walls.half_size, walls.active)
+        for row, col in maze.free_cells()[:: max(1, len(maze.free_cells()) // 4)]:
+            pose = jnp.array([*maze.cell_center(int(row), int(col)), 0.3], jnp.float32)
+            want = geometry.lasers(pose, lo, hi, env.angles, LASER_SCALE)
+            got = env.lasers(pose, jnp.int32(layout), params)
+            np.testing.assert_allclose(got, want, atol=1e-6)
+        ranges.append(np.asarray(env.lasers(jnp.array([0.5, 0.5, 0.3]), layout, params)))
+    assert len({r.tobytes() for r in ranges}) > 1  # the mazes differ, and so do their lasers
+
+
 def test_auto_reset_keeps_final_observation_and_truncates(simple):
     env, params, step, _ = simple
     short = params.replace(max_steps_in_episode=3)
