@@ -138,7 +138,8 @@ def test_lasers_read_each_episodes_own_maze():
     for layout, maze in enumerate(env.config.load_mazes()):
         walls = maze.walls(env.num_wall_slots)
         lo, hi = geometry.box_bounds(walls.center, walls.half_size, walls.active)
-        for row, col in maze.free_cells()[:: max(1, len(maze.free_cells()) // 4)]:
+        cells = maze.free_cells()
+        for row, col in cells[:: max(1, len(cells) // 4)]:
             pose = jnp.array([*maze.cell_center(int(row), int(col)), 0.3], jnp.float32)
             want = geometry.lasers(pose, lo, hi, env.angles, LASER_SCALE)
             got = env.lasers(pose, jnp.int32(layout), params)
