@@ -2,8 +2,8 @@
 
     python -m benchmarks.compare [--num-envs 1,16,256,4096,16384] [--envs NAME,...]
         [--steps 200] [--target-s 0.5] [--rounds 3] [--train-config JSON]
-        [--eval-episodes 256] [--threshold 0.95] [--sections env,train,compile]
-        [--out benchmarks/results/compare.json]
+        [--train-networks 512,256,128,64;64,64] [--eval-episodes 256] [--threshold 0.95]
+        [--sections env,train,compile] [--out benchmarks/results/compare.json]
 
 Sections (each can be left out with ``--sections``):
 
@@ -17,7 +17,10 @@ Sections (each can be left out with ``--sections``):
 - ``train``: our DQN against rejax's on GridMaze-v0 with the same network, batch, replay ratio
   and steps (``benchmarks.train_vs_rejax``): wall time, the ratio, time to a greedy success
   threshold, compile time apart. The config is the CLI's default (the paper's grid
-  experiment) with ``--train-config`` overrides, a JSON object of ``TrainConfig`` fields.
+  experiment) with ``--train-config`` overrides, a JSON object of ``TrainConfig`` fields. It
+  runs once per network of ``--train-networks``: by default the config's (the paper's
+  512-256-128-64) and rejax's default MLP (64, 64). With the large one both spend most of their
+  time in the same gradient arithmetic; with the small one, in what surrounds it.
 - ``compile``: every CLI entry point started twice, with an empty and then a filled persistent
   compilation cache (``benchmarks.compile_time``).
 
@@ -45,6 +48,7 @@ from jaxnav.config import TrainConfig
 
 DEFAULT_OUT = Path("benchmarks/results/compare.json")
 SECTIONS = ("env", "train", "compile")
+REJAX_DEFAULT_NETWORK = (64, 64)  # rejax 0.1.3's DQN MLP
 NAVIX, JAXMARL = env_throughput.NAVIX, env_throughput.JAXMARL
 DEFAULT_ENVS = (
     "GridMaze-v0",
@@ -179,6 +183,23 @@ def train_config(overrides: str) -> TrainConfig:
     return config
 
 
+def train_networks(spec: str | None, config: TrainConfig) -> list[tuple[int, ...]]:
+    """Hidden sizes of each network to train: ``spec`` as ``"512,256,128,64;64,64"``, or by
+    default the config's network and rejax's default one."""
+    if spec is None:
+        return list(dict.fromkeys([tuple(config.hidden_sizes), REJAX_DEFAULT_NETWORK]))
+    networks = []
+    for part in spec.split(";"):
+        try:
+            sizes = tuple(int(n) for n in part.split(","))
+        except ValueError:
+            sizes = ()
+        if not sizes or min(sizes) < 1:
+            raise ValueError(f"{part!r} is not a list of positive layer widths")
+        networks.append(sizes)
+    return networks
+
+
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--num-envs", default="1,16,256,4096,16384", help="comma-separated")
@@ -194,6 +215,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         "--train-config",
         default="{}",
         help="JSON TrainConfig overrides, e.g. '{\"total_timesteps\": 80000}'",
+    )
+    p.add_argument(
+        "--train-networks",
+        default=None,
+        help="hidden sizes per trained network, ';'-separated, e.g. '512,256,128,64;64,64' "
+        f"(default: the config's and rejax's default {','.join(map(str, REJAX_DEFAULT_NETWORK))})",
     )
     p.add_argument("--eval-episodes", type=int, default=256, help="greedy episodes per check")
     p.add_argument("--threshold", type=float, default=0.95, help="greedy success to reach")
@@ -219,6 +246,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         args.train_config = train_config(args.train_config)
     except (ValueError, TypeError) as e:  # bad JSON, unknown field, invalid value
         p.error(f"--train-config {args.train_config!r}: {e}")
+    try:
+        args.train_networks = train_networks(args.train_networks, args.train_config)
+    except ValueError as e:
+        p.error(f"--train-networks {args.train_networks!r}: {e}")
     return args
 
 
@@ -237,13 +268,17 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         result["env"] = env_section(args)
         parts.append("### Env steps/s\n\n" + env_tables(result["env"]))
     if "train" in args.sections:
-        config = args.train_config
-        result["train"] = train_vs_rejax.measure(config, args.eval_episodes, args.threshold)
-        result["train"]["config"] = dataclasses.asdict(config)
-        parts.append(
-            f"### DQN training, GridMaze-v0, {config.total_timesteps:,} env steps\n\n"
-            + train_vs_rejax.table(result["train"])
-        )
+        result["train"] = []
+        for hidden_sizes in args.train_networks:
+            config = dataclasses.replace(args.train_config, hidden_sizes=hidden_sizes)
+            run = train_vs_rejax.measure(config, args.eval_episodes, args.threshold)
+            result["train"].append(run | {"config": dataclasses.asdict(config)})
+            parts.append(
+                f"### DQN training, GridMaze-v0, {config.total_timesteps:,} env steps, "
+                f"network {'-'.join(map(str, hidden_sizes))}\n\n" + train_vs_rejax.table(run)
+            )
+        summary = train_vs_rejax.summary(result["train"])
+        parts.append("### DQN training, each network\n\n" + summary)
     if "compile" in args.sections:
         entries = list(compile_time.ENTRIES)
         result["compile"] = compile_time.measure(entries, args.compile_timesteps)

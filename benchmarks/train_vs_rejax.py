@@ -182,7 +182,10 @@ def measure(
             "curve": side["curve"],
         }
     ours, theirs = out["jaxnav DQN"], out["rejax DQN"]
+    params = sides[0]["q_params"](sides[0]["state"])
     return {
+        "hidden_sizes": list(config.hidden_sizes),
+        "network_weights": sum(x.size for x in jax.tree.leaves(params)),
         "threshold": threshold,
         "eval_episodes": eval_episodes,
         "sides": out,
@@ -205,4 +208,26 @@ def table(result: dict[str, Any]) -> str:
             f"{s['env_steps_per_s']:,.0f} | {s['final_success']:.3f} | {reached} |"
         )
     lines.append(f"\nWall-time ratio rejax / ours: **{result['wall_time_ratio']:.2f}x**")
+    return "\n".join(lines)
+
+
+def summary(results: list[dict[str, Any]]) -> str:
+    """One row per network of ``measure`` results: train time of each side and the ratio."""
+    thr = results[0]["threshold"]
+    lines = [
+        "| network | weights | jaxnav train s | rejax train s | rejax / ours "
+        f"| train s to success >= {thr:g}, jaxnav / rejax |",
+        "|---|---:|---:|---:|---:|---:|",
+    ]
+    for r in results:
+        ours, theirs = r["sides"]["jaxnav DQN"], r["sides"]["rejax DQN"]
+        reach = [
+            "-" if s["time_to_threshold_s"] is None else f"{s['time_to_threshold_s']:.1f}"
+            for s in (ours, theirs)
+        ]
+        lines.append(
+            f"| {'-'.join(map(str, r['hidden_sizes']))} | {r['network_weights']:,} "
+            f"| {ours['train_s']:.1f} | {theirs['train_s']:.1f} | {r['wall_time_ratio']:.2f}x "
+            f"| {reach[0]} / {reach[1]} |"
+        )
     return "\n".join(lines)

@@ -84,6 +84,9 @@ def test_peer_rows_build_and_trace_and_bad_rows_are_skipped() -> None:
         ["--train-config", '{"no_such_field": 1}'],
         ["--train-config", '{"batch_size": 0}'],
         ["--train-config", "{not json"],
+        ["--train-networks", "64,x"],
+        ["--train-networks", "64;0"],
+        ["--train-networks", ""],
     ],
 )
 def test_bad_arguments_exit_2(argv: list[str], capsys: pytest.CaptureFixture) -> None:
@@ -91,6 +94,14 @@ def test_bad_arguments_exit_2(argv: list[str], capsys: pytest.CaptureFixture) ->
         compare.parse_args(argv)
     assert e.value.code == 2
     assert "error:" in capsys.readouterr().err
+
+
+def test_train_networks_default_to_the_configs_and_rejaxs() -> None:
+    assert compare.parse_args([]).train_networks == [(512, 256, 128, 64), (64, 64)]
+    small = compare.parse_args(["--train-config", '{"hidden_sizes": [64, 64]}'])
+    assert small.train_networks == [(64, 64)]  # not measured twice
+    given = compare.parse_args(["--train-networks", "32;16,8"])
+    assert given.train_networks == [(32,), (16, 8)]
 
 
 @pytest.mark.slow
@@ -111,7 +122,11 @@ def test_train_vs_rejax_same_budget_and_curves() -> None:
         assert s["time_to_threshold_s"] == (reached[0]["train_s"] if reached else None)
     ratio = sides["rejax DQN"]["train_s"] / sides["jaxnav DQN"]["train_s"]
     assert result["wall_time_ratio"] == pytest.approx(ratio)
+    assert result["hidden_sizes"] == [16] and result["network_weights"] == 27 * 16 + 17 * 5
     assert "Wall-time ratio rejax / ours" in train_vs_rejax.table(result)
+    assert f"| 16 | 517 | {sides['jaxnav DQN']['train_s']:.1f} |" in train_vs_rejax.summary(
+        [result]
+    )
 
 
 def test_timed_command_marks_the_line_and_reports_failures(tmp_path: Path) -> None:
