@@ -358,7 +358,11 @@ class RobotNav(Environment[RobotState, RobotParams]):
         known = (d_before >= 0) & (d_after >= 0)
         r_progress = jnp.where(known, params.progress_reward * (d_before - d_after), 0.0)
         frame = self._frame(pose, state.goal, state.layout, params)
-        frames = jnp.concatenate([state.frames[1:], frame[None]], axis=0)
+        # drop the oldest frame, append the new one, on the flat vector: the same values, but
+        # XLA's GPU kernel for it took 40 instead of 58 us (H200, 262,144 envs; 1.04-1.06x
+        # env steps/s), the same speed on a CPU
+        flat = jnp.concatenate([state.frames.reshape(-1)[frame.shape[0] :], frame])
+        frames = flat.reshape(state.frames.shape)
         state = state.replace(pose=pose, frames=frames, time=state.time + 1)
         info = {
             "goal_reached": at_goal,
