@@ -74,6 +74,30 @@ def test_driving_into_a_wall_collides_stops_short_and_terminates(simple):
     assert float(info["penetration"]) == 0.0
 
 
+def test_inactive_wall_slots_do_not_collide_wherever_they_lie():
+    env, params = jaxnav.make("RobotRandom-v0", backend="kinematic", num_layouts=8)
+    step_env = jax.jit(env.step_env)
+    walls = params.bank.walls
+    maze, slot = (int(i[0]) for i in np.nonzero(~np.asarray(walls.active)))  # an unused slot
+    x, y = np.asarray(params.bank.free_xy[maze, 0])  # a cell centre: no wall within a step
+    # that slot, still inactive, moved just ahead of the robot
+    moved = walls.replace(
+        center=walls.center.at[maze, slot].set(jnp.array([x + 0.45, y])),
+        half_size=walls.half_size.at[maze, slot].set(jnp.array([0.1, 0.1])),
+    )
+    ghost = params.replace(bank=params.bank.replace(walls=moved))
+    _, s = env.reset_to(KEY, params, jnp.array([x, y, 0.0]), jnp.array([x, y]) + 5.0, maze)
+    _, s_ghost, _, term, info = step_env(KEY, s, FORWARD, ghost)
+    assert not bool(term) and not bool(info["collision"])
+    _, s_plain, _, _, _ = step_env(KEY, s, FORWARD, params)
+    np.testing.assert_array_equal(s_ghost.pose, s_plain.pose)
+    # made active, the same box stops the robot: the test above can fail
+    solid = moved.replace(active=moved.active.at[maze, slot].set(True))
+    solid_params = params.replace(bank=params.bank.replace(walls=solid))
+    _, _, _, term, info = step_env(KEY, s, FORWARD, solid_params)
+    assert bool(term) and bool(info["collision"])
+
+
 def test_goal_reward_terminates(simple):
     env, params, _, step_env = simple
     _, s = start(env, params, 2.5, 1.5, 0.0, goal=(3.0, 1.5))

@@ -61,6 +61,7 @@ LASER_SCALE = 10.0 * math.sqrt(2.0)  # Table I: sensors normalized by their maxi
 MAX_BANK_CELLS = 4_000_000  # random mazes are generated in Python: about 25 s at this size
 MAX_STEP_CELLS = 100  # a control step may cross at most this many cells (bounds the sub-steps)
 NUM_LASERS = 7
+_UNREACHABLE = -1e15  # where inactive wall slots go for the collision test (squares stay finite)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -335,9 +336,9 @@ class RobotNav(Environment[RobotState, RobotParams]):
         v = jnp.array([c.speed, -c.speed, 0.0, 0.0])[action]
         omega = jnp.array([0.0, 0.0, c.turn_speed, -c.turn_speed])[action]
         if self.physics is None:
-            walls = self._walls(params, state.layout)
+            center, half_size = self._collision_boxes(params, state.layout)
             pose, collided, penetration = geometry.move_with_walls(
-                state.pose, v, omega, c.dt, c.radius, *walls, substeps=self.substeps
+                state.pose, v, omega, c.dt, c.radius, center, half_size, True, self.substeps
             )
         else:
             walls = jax.tree.map(lambda x: x[state.layout], params.bank.walls)
@@ -377,9 +378,17 @@ class RobotNav(Environment[RobotState, RobotParams]):
         return self.get_obs(state, params), state, reward, at_goal | collided, info
 
     # -- observation --------------------------------------------------------------
-    def _walls(self, params: RobotParams, layout: jax.Array) -> tuple[jax.Array, ...]:
+    def _collision_boxes(
+        self, params: RobotParams, layout: jax.Array
+    ) -> tuple[jax.Array, jax.Array]:
+        """The layout's wall boxes (centres, half sizes) for a collision test without a mask:
+        inactive slots are moved 1e15 m away, beyond any disc. Unmasked, the test ran 1.02-1.07x
+        faster on an H200 (65,536 to 1,048,576 envs, RobotRandom-v0), the same on a CPU."""
         w = params.bank.walls
-        return w.center[layout], w.half_size[layout], w.active[layout]
+        # on the whole bank, so the select is not redone per env (XLA folds it when the bank
+        # is a constant of the program, as in the trainer and the benchmarks)
+        center = jnp.where(w.active[..., None], w.center, _UNREACHABLE)
+        return center[layout], w.half_size[layout]
 
     def goal_distance(
         self, pose: jax.Array, goal: jax.Array, layout: jax.Array, params: RobotParams
