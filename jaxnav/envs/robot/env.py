@@ -377,7 +377,6 @@ class RobotNav(Environment[RobotState, RobotParams]):
         reward = r_goal + r_collision + r_step + r_progress
         return self.get_obs(state, params), state, reward, at_goal | collided, info
 
-    # -- observation --------------------------------------------------------------
     def _collision_boxes(
         self, params: RobotParams, layout: jax.Array
     ) -> tuple[jax.Array, jax.Array]:
@@ -390,6 +389,7 @@ class RobotNav(Environment[RobotState, RobotParams]):
         center = jnp.where(w.active[..., None], w.center, _UNREACHABLE)
         return center[layout], w.half_size[layout]
 
+    # -- observation --------------------------------------------------------------
     def goal_distance(
         self, pose: jax.Array, goal: jax.Array, layout: jax.Array, params: RobotParams
     ) -> jax.Array:
