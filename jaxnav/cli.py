@@ -31,7 +31,8 @@ from jaxnav.agents import dqn
 from jaxnav.checkpoints import Checkpoints
 from jaxnav.config import MAX_STEPS, TrainConfig
 from jaxnav.evaluate import evaluate_seeds, mean_of
-from jaxnav.registration import registered_envs, train_defaults
+from jaxnav.presets import train_defaults
+from jaxnav.registration import registered_envs
 from jaxnav.train import DIVERGENCE_QUANTITIES, METRIC_NAMES, Trainer
 
 EXIT_DIVERGED = 3
@@ -48,6 +49,14 @@ HELP = {
     "hidden_sizes": "MLP widths, comma separated (the paper's: 512,256,128,64)",
     "dueling": "dueling heads V + A - mean(A) (paper eq. 7)",
     "double": "double-DQN targets (paper eq. 6)",
+    "algo": "dqn (the paper's: replay and a target network) or pqn (lambda-returns over "
+    "rollouts of many envs, no replay)",
+    "layer_norm": "LayerNorm before each hidden ReLU (PQN's network)",
+    "compute_dtype": "float32 or bfloat16 matrix products in the hidden layers",
+    "rollout_length": "pqn: env steps of every env per iteration",
+    "num_epochs": "pqn: passes over each rollout",
+    "num_minibatches": "pqn: gradient steps per pass over a rollout",
+    "td_lambda": "pqn: lambda of the lambda-returns",
     "loss": "huber or mse",
     "buffer_size": "replay capacity in transitions",
     "batch_size": "transitions per gradient step",
@@ -288,7 +297,7 @@ class Progress:
         if self.quiet:
             return
         elapsed = now - self.start
-        total = self.config.num_logs * self.config.iterations_per_log * self.config.num_envs
+        total = self.config.num_logs * self.config.steps_per_log
         sps = (steps - self.start_steps) * self.config.num_seeds / max(elapsed, 1e-9)
         eta = (total - steps) * self.config.num_seeds / max(sps, 1e-9)
         mean = lambda k: float(np.mean(metrics[k]))  # noqa: E731
@@ -303,7 +312,7 @@ class Progress:
     def steps_per_second(self, env_steps: np.ndarray) -> np.ndarray:
         """Env steps/s (all seeds) of each logging interval (NaN where not timed)."""
         dt = np.array([self.seconds.get(int(s), np.nan) for s in env_steps])
-        interval = self.config.iterations_per_log * self.config.num_envs * self.config.num_seeds
+        interval = self.config.steps_per_log * self.config.num_seeds
         return interval / dt
 
 
@@ -364,7 +373,7 @@ def train_seeds(
     cached = " (traced programs from the cache)" if compiled.from_cache else ""
     print_primary(f"compiled in {compile_s:.1f}s{cached}", flush=True)
     c = trainer.config
-    steps_per_log = c.iterations_per_log * c.num_envs
+    steps_per_log = c.steps_per_log
     like = compiled.metrics_like
     metrics = {k: np.zeros((len(keys), c.num_logs), like[k].dtype) for k in METRIC_NAMES}
     checkpoints = (  # every process restores; process 0 alone saves
@@ -427,7 +436,7 @@ def _raise_if_diverged(state: Any, c: TrainConfig, checkpoints: Checkpoints) -> 
     codes, at = sharding.to_host((state.diverged, state.diverged_at))
     if not codes.any():
         return
-    last_good = (checkpoints.latest() or 0) * c.iterations_per_log * c.num_envs
+    last_good = (checkpoints.latest() or 0) * c.steps_per_log
     bad = [
         f"seed {seed}: {DIVERGENCE_QUANTITIES[code - 1]} became NaN or Inf at env step {a:,}"
         for seed, code, a in zip(run_dir.seeds_of(c), codes, at, strict=True)
@@ -485,7 +494,7 @@ def train_main(argv: Sequence[str] | None = None) -> int:
     progress = Progress(config, args.quiet or not is_primary())
 
     enable_compilation_cache()
-    steps_per_log = config.iterations_per_log * config.num_envs
+    steps_per_log = config.steps_per_log
     every = max(1, round(args.checkpoint_every / steps_per_log))
     saving = Saving(partial, every, args.keep_checkpoints)
     if args.resume is None and is_primary():

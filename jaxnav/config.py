@@ -8,11 +8,14 @@ from typing import Any
 
 import jax
 
-from jaxnav.registration import env_config, train_defaults
+from jaxnav.agents.dqn import COMPUTE_DTYPES
+from jaxnav.presets import train_defaults
+from jaxnav.registration import env_config
 from jaxnav.sharding import mesh_shape
 
 # step counters are int32 inside the compiled loop; keep a margin below 2^31
 MAX_STEPS = 2_000_000_000
+ALGOS = ("dqn", "pqn")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -24,6 +27,9 @@ class TrainConfig:
 
     env: str = "GridMaze-v0"
     env_kwargs: dict[str, Any] = dataclasses.field(default_factory=dict)
+    # "dqn": the paper's (dueling, double) DQN with replay and a target network; "pqn":
+    # lambda-returns over rollouts of many envs, no replay, no target network
+    algo: str = "dqn"
     seed: int = 0
     num_seeds: int = 1
     total_timesteps: int = 240_000
@@ -34,6 +40,8 @@ class TrainConfig:
     hidden_sizes: tuple[int, ...] = (512, 256, 128, 64)
     dueling: bool = True
     double: bool = True
+    layer_norm: bool = False
+    compute_dtype: str = "float32"  # of the hidden layers' matrix products
     loss: str = "huber"
     # replay
     buffer_size: int = 100_000
@@ -42,6 +50,11 @@ class TrainConfig:
     updates_per_iteration: int = 1  # gradient steps per vectorized env step (num_envs steps)
     n_step: int = 1
     target_update_period: int = 2_000  # static, so skipped iterations cost nothing
+    # PQN: each iteration steps every env rollout_length times, then num_epochs passes of
+    # num_minibatches gradient steps over those num_envs * rollout_length transitions
+    rollout_length: int = 1
+    num_epochs: int = 1
+    num_minibatches: int = 1
     optimizer: str = "adam"
     # per-run hyperparameters (vmappable leaves of HParams)
     gamma: float = 0.9
@@ -52,15 +65,22 @@ class TrainConfig:
     eps_start: float = 1.0
     eps_end: float = 0.05
     eps_decay_steps: int = 100_000
+    td_lambda: float = 0.65  # PQN's lambda-returns
     # bookkeeping
     log_interval: int = 16_000
     eval_episodes: int = 1000
 
     @classmethod
     def for_env(cls, env: str = "GridMaze-v0", **overrides: Any) -> TrainConfig:
-        """The config for ``env`` with that env's tuned defaults (``train_defaults``; e.g. the
-        robot envs train longer with 3-step returns), then ``overrides``."""
-        return cls(env=env, **{**train_defaults(env), **overrides})
+        """The config for ``env`` with the tuned defaults of that env and algorithm
+        (``jaxnav.presets``; e.g. the robot envs train longer with 3-step returns), then
+        ``overrides``."""
+        return cls(env=env, **{**train_defaults(env, overrides.get("algo", "dqn")), **overrides})
+
+    @property
+    def steps_per_iteration(self) -> int:
+        """Env steps of one iteration: every env steps ``rollout_length`` times."""
+        return self.num_envs * self.rollout_length
 
     @property
     def iterations(self) -> int:
@@ -68,16 +88,37 @@ class TrainConfig:
 
     @property
     def iterations_per_log(self) -> int:
-        return max(1, self.log_interval // self.num_envs)
+        return max(1, self.log_interval // self.steps_per_iteration)
+
+    @property
+    def steps_per_log(self) -> int:
+        return self.iterations_per_log * self.steps_per_iteration
 
     @property
     def num_logs(self) -> int:
-        return max(1, math.ceil(self.total_timesteps / (self.iterations_per_log * self.num_envs)))
+        return max(1, math.ceil(self.total_timesteps / self.steps_per_log))
 
     @property
     def first_learning_iteration(self) -> int:
-        """The first iteration whose env-step count reaches ``learning_starts``."""
+        """The first iteration whose env-step count reaches ``learning_starts`` (PQN learns
+        from its first rollout)."""
+        if self.algo == "pqn":
+            return 0
         return -(-self.learning_starts // self.num_envs)
+
+    @property
+    def updates_per_learning_iteration(self) -> int:
+        """Gradient steps of an iteration that learns."""
+        if self.algo == "pqn":
+            return self.num_epochs * self.num_minibatches
+        return self.updates_per_iteration
+
+    @property
+    def minibatch_size(self) -> int:
+        """Transitions per gradient step."""
+        if self.algo == "pqn":
+            return self.steps_per_iteration // self.num_minibatches
+        return self.batch_size
 
     @property
     def buffer_rows(self) -> int:
@@ -97,6 +138,9 @@ class TrainConfig:
             "learning_starts": (0, MAX_STEPS),
             "updates_per_iteration": (1, 1024),
             "n_step": (1, 64),
+            "rollout_length": (1, 4096),
+            "num_epochs": (1, 1024),
+            "num_minibatches": (1, 2**20),
             "target_update_period": (1, MAX_STEPS),
             "eps_decay_steps": (1, MAX_STEPS),
             "log_interval": (1, MAX_STEPS),
@@ -114,6 +158,7 @@ class TrainConfig:
             "tau": (0.0, 1.0),
             "eps_start": (0.0, 1.0),
             "eps_end": (0.0, 1.0),
+            "td_lambda": (0.0, 1.0),
         }
         for name, (lo, hi) in floats.items():
             v = getattr(self, name)
@@ -130,9 +175,14 @@ class TrainConfig:
             raise ValueError(
                 f"hidden_sizes={self.hidden_sizes!r}: must be one or more integers in [1, 65536]"
             )
-        for name in ("dueling", "double"):
+        for name in ("dueling", "double", "layer_norm"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"{name}={getattr(self, name)!r}: must be true or false")
+        for name, choices in (("algo", ALGOS), ("compute_dtype", COMPUTE_DTYPES)):
+            if getattr(self, name) not in choices:
+                raise ValueError(
+                    f"{name}={getattr(self, name)!r}: must be one of {', '.join(choices)}"
+                )
         if self.loss not in ("huber", "mse"):
             raise ValueError(f"loss={self.loss!r}: must be one of huber, mse")
         if self.optimizer not in ("adam", "sgd"):
@@ -142,13 +192,37 @@ class TrainConfig:
                 f"devices={self.devices}: only {jax.device_count()} device(s) are available"
             )
         env_shards = mesh_shape(self.num_seeds, self.devices)[1]
-        for name in ("num_envs", "batch_size"):
+        for name in ("num_envs", "minibatch_size"):
             if getattr(self, name) % env_shards:
+                shown = "batch_size" if name == "minibatch_size" and self.algo == "dqn" else name
                 raise ValueError(
-                    f"{name}={getattr(self, name)} is not a multiple of the {env_shards} "
+                    f"{shown}={getattr(self, name)} is not a multiple of the {env_shards} "
                     f"devices each seed's envs are split over (devices={self.devices}, "
                     f"num_seeds={self.num_seeds})"
                 )
+        if self.iterations * self.steps_per_iteration > MAX_STEPS:
+            raise ValueError(
+                f"total_timesteps={self.total_timesteps}: rounded up to whole logging intervals "
+                f"it exceeds {MAX_STEPS} steps"
+            )
+        if self.algo == "pqn":
+            self._validate_pqn()
+        else:
+            self._validate_dqn()
+
+    def _validate_pqn(self) -> None:
+        if self.steps_per_iteration % self.num_minibatches:
+            raise ValueError(
+                f"num_minibatches={self.num_minibatches} does not divide the "
+                f"num_envs * rollout_length = {self.steps_per_iteration} transitions of a rollout"
+            )
+
+    def _validate_dqn(self) -> None:
+        if self.rollout_length != 1:
+            raise ValueError(
+                f"rollout_length={self.rollout_length}: algo=dqn steps every env once per "
+                "iteration (use updates_per_iteration for the replay ratio)"
+            )
         if self.batch_size > self.buffer_size:
             raise ValueError(
                 f"batch_size={self.batch_size} is larger than buffer_size={self.buffer_size}"
@@ -157,11 +231,6 @@ class TrainConfig:
             raise ValueError(
                 f"buffer_size={self.buffer_size} must hold n_step={self.n_step} steps of "
                 f"num_envs={self.num_envs} envs (>= {self.num_envs * self.n_step})"
-            )
-        if self.iterations * self.num_envs > MAX_STEPS:
-            raise ValueError(
-                f"total_timesteps={self.total_timesteps}: rounded up to whole logging intervals "
-                f"it exceeds {MAX_STEPS} steps"
             )
         if self.learning_starts >= self.total_timesteps:
             raise ValueError(

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-import sys
 from collections.abc import Callable
 from typing import Any
 
@@ -31,13 +30,6 @@ def _entry(env_id: str) -> tuple[Callable[..., Environment], Callable[[], Any], 
     if env_id not in _REGISTRY:
         raise ValueError(f"unknown env id {env_id!r}; valid ids: {', '.join(registered_envs())}")
     return _REGISTRY[env_id]
-
-
-def train_defaults(env_id: str) -> dict[str, Any]:
-    """TrainConfig values tuned for ``env_id`` (its module's ``TRAIN_DEFAULTS``); fields not
-    listed keep TrainConfig's defaults, which are tuned for the grid."""
-    module = sys.modules[_entry(env_id)[0].__module__]
-    return dict(getattr(module, "TRAIN_DEFAULTS", {}))
 
 
 def registered_envs() -> list[str]:

@@ -47,8 +47,8 @@ def state_specs(state: Any) -> Any:
     per_env = P(SEEDS, ENVS)
     replay = P(SEEDS, None, ENVS)
     per_seed = P(SEEDS)
-    buffer = state.buffer
-    buffer_specs = buffer.replace(
+    buffer = state.buffer  # None without replay (PQN)
+    buffer_specs = buffer and buffer.replace(
         **{
             name: replay if getattr(buffer, name).ndim >= 3 else per_seed
             for name in buffer.__dataclass_fields__

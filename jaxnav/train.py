@@ -1,9 +1,16 @@
-"""DQN training as one pure function: ``train = make_train(config); state, metrics = train(key)``.
+"""Q-learning as one pure function: ``train = make_train(config); state, metrics = train(key)``.
 
-The whole run is a ``jax.lax.scan`` over logging intervals, each a scan over iterations (one
-vectorized env step of ``num_envs`` envs plus ``updates_per_iteration`` gradient steps). The
-same compiled interval runs a whole training or a chunk of one (``Trainer.run``), so a run cut
-into chunks for checkpoints computes exactly what an uncut one does. ``jit(vmap(train))``
+The whole run is a ``jax.lax.scan`` over logging intervals, each a scan over iterations. An
+iteration steps every env ``rollout_length`` times (acting epsilon-greedily with the online
+network), then learns from what it collected:
+
+- ``algo="dqn"`` (the paper's): one env step, written into the replay buffer, then
+  ``updates_per_iteration`` gradient steps on replay samples against a target network;
+- ``algo="pqn"``: a rollout of many envs, lambda-returns from the online network, then
+  ``num_epochs`` passes of ``num_minibatches`` gradient steps over it; no replay, no target.
+
+The same compiled interval runs a whole training or a chunk of one (``Trainer.run``), so a run
+cut into chunks for checkpoints computes exactly what an uncut one does. ``jit(vmap(train))``
 trains several seeds (and several hyperparameter settings: ``HParams`` are pytree leaves) at once.
 """
 
@@ -22,7 +29,7 @@ from jax.sharding import NamedSharding
 from jax.sharding import PartitionSpec as P
 
 from jaxnav import sharding
-from jaxnav.agents import dqn
+from jaxnav.agents import dqn, pqn
 from jaxnav.config import TrainConfig
 from jaxnav.registration import make
 from jaxnav.sharding import ENVS, SEEDS
@@ -60,6 +67,7 @@ class HParams:
     eps_start: jax.Array
     eps_end: jax.Array
     eps_decay_steps: jax.Array
+    td_lambda: jax.Array
 
     @classmethod
     def from_config(cls, config: TrainConfig) -> HParams:
@@ -68,11 +76,23 @@ class HParams:
 
 
 @struct.dataclass
+class Transitions:
+    """What a rollout collected, laid out [time, env, ...]."""
+
+    obs: jax.Array
+    action: jax.Array
+    reward: jax.Array
+    next_obs: jax.Array  # the final observation where the episode ended
+    terminated: jax.Array
+    done: jax.Array
+
+
+@struct.dataclass
 class TrainState:
     params: Any
-    target_params: Any
+    target_params: Any  # None for PQN
     opt_state: Any
-    buffer: dqn.ReplayBuffer
+    buffer: dqn.ReplayBuffer | None  # None for PQN
     env_state: Any
     obs: jax.Array  # [N, D]
     episode_return: jax.Array  # [N] running return of each env's current episode
@@ -96,6 +116,8 @@ class Trainer:
             hidden_sizes=tuple(config.hidden_sizes),
             dueling=config.dueling,
             onehot_sizes=self.env.obs_onehot_sizes,
+            layer_norm=config.layer_norm,
+            compute_dtype=config.compute_dtype,
         )
         self.obs_size = self.env.observation_space(self.env_params).shape[0]
         self._check_memory()
@@ -114,7 +136,8 @@ class Trainer:
         sizes = (first, *c.hidden_sizes, self.env.num_actions + 1)
         weights = sum((a + 1) * b for a, b in zip(sizes[:-1], sizes[1:], strict=False))
         obs_bytes = self.obs_size * jnp.dtype(self.env.observation_space().dtype).itemsize
-        replay = c.buffer_rows * c.num_envs * (2 * obs_bytes + 4 * 4)
+        rows = c.rollout_length if c.algo == "pqn" else c.buffer_rows
+        replay = rows * c.num_envs * (2 * obs_bytes + 4 * 4)
         need = c.num_seeds * (replay + 4 * 4 * weights)
         have = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
         if need > have:
@@ -132,7 +155,7 @@ class Trainer:
     def total_updates(self) -> int:
         c = self.config
         learning_iterations = c.iterations - min(c.iterations, c.first_learning_iteration)
-        return max(1, learning_iterations * c.updates_per_iteration)
+        return max(1, learning_iterations * c.updates_per_learning_iteration)
 
     def learning_rate(self, hp: HParams, updates: jax.Array) -> jax.Array:
         """Linear decay from ``lr`` to ``lr_end`` over the run's gradient steps."""
@@ -152,12 +175,16 @@ class Trainer:
         obs, env_state = jax.vmap(self.env.reset, in_axes=(0, None))(
             jax.random.split(k_env, c.num_envs), self.env_params
         )
+        replay = c.algo == "dqn"
+        obs_dtype = self.env.observation_space().dtype
         return TrainState(
             params=params,
-            target_params=params,
+            target_params=params if replay else None,
             opt_state=self._optimizer(hp).init(params),
-            buffer=dqn.buffer_init(
-                c.buffer_rows, c.num_envs, self.obs_size, self.env.observation_space().dtype
+            buffer=(
+                dqn.buffer_init(c.buffer_rows, c.num_envs, self.obs_size, obs_dtype)
+                if replay
+                else None
             ),
             env_state=env_state,
             obs=obs,
@@ -173,34 +200,36 @@ class Trainer:
         frac = jnp.clip(1.0 - env_steps / hp.eps_decay_steps, 0.0, 1.0)
         return hp.eps_end + (hp.eps_start - hp.eps_end) * frac
 
-    def _update(self, ts: TrainState, key: jax.Array) -> tuple[TrainState, dict]:
-        c, hp = self.config, ts.hparams
-        batch = dqn.buffer_sample(ts.buffer, key, c.batch_size, c.n_step, hp.gamma)
+    def _gradient_step(
+        self, ts: TrainState, batch: Any, loss_fn: Callable
+    ) -> tuple[TrainState, dict]:
+        """One optimizer step on ``loss_fn(params, batch) -> (loss, aux)``."""
         # data parallel over a seed's devices: each computes the loss and gradient of its part
         # of the batch, and XLA sums the parts (the gradient averaging of ``sharded``)
         batch = jax.lax.with_sharding_constraint(batch, NamedSharding(self.mesh, P(ENVS)))
+        (loss, aux), grads = jax.value_and_grad(loss_fn, has_aux=True)(ts.params, batch)
+        updates, opt_state = self._optimizer(ts.hparams).update(grads, ts.opt_state, ts.params)
+        params = optax.apply_updates(ts.params, updates)
+        return ts.replace(params=params, opt_state=opt_state), {"loss": loss, **aux}
 
-        def loss_fn(params):
+    def _dqn_update(self, ts: TrainState, key: jax.Array) -> tuple[TrainState, dict]:
+        c = self.config
+        batch = dqn.buffer_sample(ts.buffer, key, c.batch_size, c.n_step, ts.hparams.gamma)
+
+        def loss_fn(params, batch):
             return dqn.td_loss(
                 params, ts.target_params, self.network.apply, batch, c.double, c.loss
             )
 
-        (loss, aux), grads = jax.value_and_grad(loss_fn, has_aux=True)(ts.params)
-        updates, opt_state = self._optimizer(hp).update(grads, ts.opt_state, ts.params)
-        params = optax.apply_updates(ts.params, updates)
-        return ts.replace(params=params, opt_state=opt_state), {"loss": loss, **aux}
+        return self._gradient_step(ts, batch, loss_fn)
 
-    def _iteration(self, ts: TrainState, it: jax.Array) -> tuple[TrainState, dict]:
-        """One vectorized env step, then gradient steps once ``learning_starts`` is passed.
-
-        ``it`` (the global iteration) comes from the scan, not the state, so it is unbatched
-        under ``vmap`` and the ``cond`` below skips the updates for real during warm-up.
-        """
-        c, hp = self.config, ts.hparams
-        key, k_act, k_eps, k_step, k_upd = jax.random.split(ts.key, 5)
-        env_steps = it * c.num_envs
-        learning = env_steps >= c.learning_starts
-        eps = jnp.where(learning, self.epsilon(hp, env_steps), 1.0)
+    def _env_step(
+        self, ts: TrainState, keys: tuple[jax.Array, jax.Array, jax.Array], eps: jax.Array
+    ) -> tuple[TrainState, tuple[Transitions, jax.Array, dict]]:
+        """One epsilon-greedy step of every env: the new state, the transitions, whether the
+        acting Q-values were finite, and episode statistics (sums over envs)."""
+        c = self.config
+        k_act, k_eps, k_step = keys
         q = self.network.apply(ts.params, ts.obs)
         explore = jax.random.uniform(k_eps, (c.num_envs,)) < eps
         random_action = jax.random.randint(k_act, (c.num_envs,), 0, self.env.num_actions)
@@ -209,8 +238,8 @@ class Trainer:
             self.env.step, in_axes=(0, 0, 0, None)
         )(jax.random.split(k_step, c.num_envs), ts.env_state, action, self.env_params)
         done = terminated | truncated
-        buffer = dqn.buffer_add(
-            ts.buffer, ts.obs, action, reward, info["final_observation"], terminated, done
+        transitions = Transitions(
+            ts.obs, action, reward, info["final_observation"], terminated, done
         )
         ep_return = ts.episode_return + reward
         ep_length = ts.episode_length + 1
@@ -222,17 +251,30 @@ class Trainer:
             "collisions": (done & info["collision"]).sum(),
         }
         ts = ts.replace(
-            buffer=buffer,
             env_state=env_state,
             obs=obs,
             episode_return=jnp.where(done, 0.0, ep_return),
             episode_length=jnp.where(done, 0, ep_length),
-            key=key,
         )
+        return ts, (transitions, jnp.isfinite(q).all(), stats)
+
+    def _dqn_learn(
+        self, ts: TrainState, tr: Transitions, env_steps: jax.Array, key: jax.Array
+    ) -> tuple[TrainState, dict]:
+        """Write the step into replay; once ``learning_starts`` is passed, gradient steps and
+        the target network's update."""
+        c, hp = self.config, ts.hparams
+        step = jax.tree.map(lambda x: x[0], tr)
+        buffer = dqn.buffer_add(
+            ts.buffer, step.obs, step.action, step.reward, step.next_obs, step.terminated,
+            step.done,
+        )  # fmt: skip
+        ts = ts.replace(buffer=buffer)
+        learning = env_steps >= c.learning_starts
 
         def updates(ts):
             ts, aux = jax.lax.scan(
-                self._update, ts, jax.random.split(k_upd, c.updates_per_iteration)
+                self._dqn_update, ts, jax.random.split(key, c.updates_per_iteration)
             )
             return ts, jax.tree.map(jnp.mean, aux) | {"updated": jnp.ones((), jnp.int32)}
 
@@ -257,9 +299,68 @@ class Trainer:
             lambda ts: ts,
             ts,
         )
-        q_finite = jnp.isfinite(q).all() & jnp.isfinite(aux["q_mean"]) & jnp.isfinite(aux["q_max"])
+        return ts, aux
+
+    def _pqn_learn(
+        self, ts: TrainState, tr: Transitions, key: jax.Array
+    ) -> tuple[TrainState, dict]:
+        """Lambda-returns of the rollout from the current network, then ``num_epochs``
+        shuffled passes of ``num_minibatches`` gradient steps over it."""
+        c, hp = self.config, ts.hparams
+        next_value = self.network.apply(ts.params, tr.next_obs).max(axis=-1)
+        targets = pqn.lambda_returns(
+            tr.reward, tr.terminated, tr.done, next_value, hp.gamma, hp.td_lambda
+        )
+        n = c.steps_per_iteration
+        data = (
+            tr.obs.reshape(n, -1),
+            tr.action.reshape(n),
+            jax.lax.stop_gradient(targets).reshape(n),
+        )
+
+        def loss_fn(params, batch):
+            obs, action, target = batch
+            return dqn.regression_loss(params, self.network.apply, obs, action, target, c.loss)
+
+        def epoch(ts, k):
+            order = jax.random.permutation(k, n)
+            minibatches = jax.tree.map(
+                lambda x: x[order].reshape(c.num_minibatches, -1, *x.shape[1:]), data
+            )
+            return jax.lax.scan(
+                lambda ts, batch: self._gradient_step(ts, batch, loss_fn), ts, minibatches
+            )
+
+        ts, aux = jax.lax.scan(epoch, ts, jax.random.split(key, c.num_epochs))
+        return ts, jax.tree.map(jnp.mean, aux) | {"updated": jnp.ones((), jnp.int32)}
+
+    def _iteration(self, ts: TrainState, it: jax.Array) -> tuple[TrainState, dict]:
+        """Every env steps ``rollout_length`` times, then the algorithm learns.
+
+        ``it`` (the global iteration) comes from the scan, not the state, so it is unbatched
+        under ``vmap`` and DQN's ``cond`` skips the updates for real during warm-up.
+        """
+        c, hp = self.config, ts.hparams
+        env_steps = it * c.steps_per_iteration
+        if c.algo == "dqn":
+            key, k_act, k_eps, k_step, k_learn = jax.random.split(ts.key, 5)
+            eps = jnp.where(env_steps >= c.learning_starts, self.epsilon(hp, env_steps), 1.0)
+            ts, collected = self._env_step(ts, (k_act, k_eps, k_step), eps)
+            tr, q_finite, stats = jax.tree.map(lambda x: x[None], collected)
+            ts, aux = self._dqn_learn(ts.replace(key=key), tr, env_steps, k_learn)
+        else:
+            key, k_roll, k_learn = jax.random.split(ts.key, 3)
+            eps = self.epsilon(hp, env_steps)
+            ts, (tr, q_finite, stats) = jax.lax.scan(
+                lambda ts, k: self._env_step(ts, tuple(jax.random.split(k, 3)), eps),
+                ts,
+                jax.random.split(k_roll, c.rollout_length),
+            )
+            ts, aux = self._pqn_learn(ts.replace(key=key), tr, k_learn)
+        stats = jax.tree.map(lambda x: x.sum(axis=0), stats)
+        finite = q_finite.all() & jnp.isfinite(aux["q_mean"]) & jnp.isfinite(aux["q_max"])
         ts = self._flag_divergence(
-            ts, [q_finite, jnp.isfinite(aux["loss"])], env_steps + c.num_envs
+            ts, [finite, jnp.isfinite(aux["loss"])], env_steps + c.steps_per_iteration
         )
         stats |= {
             "loss_sum": aux["loss"] * aux["updated"],
@@ -291,7 +392,7 @@ class Trainer:
         s = jax.tree.map(lambda x: x.sum(), stats)
         episodes = jnp.maximum(s["episodes"], 1)
         updated = jnp.maximum(s["updated"], 1)
-        env_steps = (first + c.iterations_per_log) * c.num_envs
+        env_steps = (first + c.iterations_per_log) * c.steps_per_iteration
         params_finite = jnp.stack([jnp.isfinite(x).all() for x in jax.tree.leaves(ts.params)])
         ts = self._flag_divergence(
             ts,
@@ -310,7 +411,7 @@ class Trainer:
             "loss": s["loss_sum"] / updated,
             "q_mean": s["q_sum"] / updated,
             "epsilon": self.epsilon(ts.hparams, env_steps),
-            "lr": self.learning_rate(ts.hparams, updates_done * c.updates_per_iteration),
+            "lr": self.learning_rate(ts.hparams, updates_done * c.updates_per_learning_iteration),
         }
         return ts, metrics
 

@@ -1,7 +1,9 @@
-"""Functional DQN pieces: Q-network (``dueling`` flag), TD loss (``double`` flag), replay buffer.
+"""Functional Q-learning pieces: Q-network (``dueling`` and ``layer_norm`` flags), the TD
+regression loss, DQN targets (``double`` flag) and the replay buffer.
 
 With ``dueling=False`` and ``double=False`` this is the paper's "simple DQN"; with both on it is
-the paper's model (eq. 6 and 7 of the paper).
+the paper's model (eq. 6 and 7 of the paper). PQN (``jaxnav.agents.pqn``) uses the same network
+(with ``layer_norm``) and loss, with lambda-returns for targets instead of a target network.
 """
 
 from __future__ import annotations
@@ -52,16 +54,24 @@ def check_input_fits(env_id: str, have: InputSpec, want: InputSpec) -> None:
     )
 
 
+COMPUTE_DTYPES = ("float32", "bfloat16")
+
+
 class QNetwork(nn.Module):
     """MLP Q-network; the paper's is 512-256-128-64 with dueling heads.
 
     ``onehot_sizes`` (an env's ``obs_onehot_sizes``) one-hot encodes compact observations
-    first; one-hot times a dense layer is an embedding lookup, the same function."""
+    first; one-hot times a dense layer is an embedding lookup, the same function.
+    ``layer_norm`` normalizes each hidden layer before its ReLU (PQN's network: it keeps
+    bootstrapped targets from diverging without a target network). ``compute_dtype``
+    "bfloat16" runs the matrix products in bfloat16 (parameters and Q-values stay float32)."""
 
     num_actions: int
     hidden_sizes: Sequence[int] = (512, 256, 128, 64)
     dueling: bool = True
     onehot_sizes: tuple[int, ...] | None = None
+    layer_norm: bool = False
+    compute_dtype: str = "float32"
 
     @nn.compact
     def __call__(self, obs: jax.Array) -> jax.Array:
@@ -69,8 +79,13 @@ class QNetwork(nn.Module):
             x = obs.astype(jnp.float32)  # observations may be stored compactly (int8)
         else:
             x = expand_onehot(obs, self.onehot_sizes)
+        dtype = jnp.dtype(self.compute_dtype)
         for width in self.hidden_sizes:
-            x = nn.relu(nn.Dense(width)(x))
+            x = nn.Dense(width, dtype=dtype)(x)
+            if self.layer_norm:
+                x = nn.LayerNorm(dtype=dtype)(x)
+            x = nn.relu(x)
+        x = x.astype(jnp.float32)  # the heads in float32: Q-values are compared and regressed
         if not self.dueling:
             return nn.Dense(self.num_actions)(x)
         value = nn.Dense(1, name="value")(x)
@@ -184,20 +199,24 @@ def buffer_sample(
 
 
 # ---------------------------------------------------------------------------- loss
-def td_loss(
-    params,
-    target_params,
-    apply_fn,
-    batch: Batch,
-    double: bool,
-    loss_type: str = "huber",
+def regression_loss(
+    params, apply_fn, obs: jax.Array, action: jax.Array, target: jax.Array, loss_type: str
 ) -> tuple[jax.Array, dict[str, jax.Array]]:
-    """Mean TD loss of a batch and diagnostics.
+    """Mean TD loss of ``Q(obs, action)`` against fixed ``target`` values, and diagnostics;
+    ``loss_type`` "huber" (delta 1) or "mse" (the squared error)."""
+    q = apply_fn(params, obs)
+    q_taken = jnp.take_along_axis(q, action[:, None], axis=-1)[:, 0]
+    td = q_taken - jax.lax.stop_gradient(target)
+    if loss_type == "huber":
+        per_sample = jnp.where(jnp.abs(td) <= 1.0, 0.5 * td**2, jnp.abs(td) - 0.5)
+    else:
+        per_sample = td**2
+    return per_sample.mean(), {"q_mean": q_taken.mean(), "q_max": jnp.abs(q).max()}
 
-    Target: ``returns + bootstrap_discount * Q_target(s', a*)`` with ``a* = argmax Q_target(s')``
-    (simple DQN, eq. 5) or ``a* = argmax Q_online(s')`` (``double``, eq. 6).
-    """
-    q = apply_fn(params, batch.obs)
+
+def dqn_target(params, target_params, apply_fn, batch: Batch, double: bool) -> jax.Array:
+    """``returns + bootstrap_discount * Q_target(s', a*)`` with ``a* = argmax Q_target(s')``
+    (simple DQN, eq. 5) or ``a* = argmax Q_online(s')`` (``double``, eq. 6)."""
     q_next_target = apply_fn(target_params, batch.bootstrap_obs)
     if double:
         # its own pass, gradient stopped: one pass over s and s' together would also run the
@@ -207,14 +226,20 @@ def td_loss(
     else:
         best = jnp.argmax(q_next_target, axis=-1)
     next_value = jnp.take_along_axis(q_next_target, best[:, None], axis=-1)[:, 0]
-    target = jax.lax.stop_gradient(batch.returns + batch.bootstrap_discount * next_value)
-    q_taken = jnp.take_along_axis(q, batch.action[:, None], axis=-1)[:, 0]
-    td = q_taken - target
-    if loss_type == "huber":
-        per_sample = jnp.where(jnp.abs(td) <= 1.0, 0.5 * td**2, jnp.abs(td) - 0.5)
-    else:
-        per_sample = td**2
-    return per_sample.mean(), {"q_mean": q_taken.mean(), "q_max": jnp.abs(q).max()}
+    return jax.lax.stop_gradient(batch.returns + batch.bootstrap_discount * next_value)
+
+
+def td_loss(
+    params,
+    target_params,
+    apply_fn,
+    batch: Batch,
+    double: bool,
+    loss_type: str = "huber",
+) -> tuple[jax.Array, dict[str, jax.Array]]:
+    """DQN's mean TD loss of a replay batch against ``dqn_target``, and diagnostics."""
+    target = dqn_target(params, target_params, apply_fn, batch, double)
+    return regression_loss(params, apply_fn, batch.obs, batch.action, target, loss_type)
 
 
 def polyak(target_params: Any, params: Any, tau: jax.Array) -> Any:

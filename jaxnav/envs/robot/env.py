@@ -190,24 +190,6 @@ PAPER_SETUP: dict[str, Any] = {
     "progress_reward": 0.0,
 }
 
-# TrainConfig defaults for the robot envs, chosen by measurement
-# (benchmarks/results/robot_sweep*.md): 3-step returns and gamma 0.95 (1-step returns with the
-# grid's gamma 0.9 plateau near 0.86 success on RobotSimple-v0), and a longer run, since paths
-# take ~40 control steps rather than ~10 cells. 64 envs with batch 512 keep the replay ratio of
-# 16 envs with batch 128 (8 sampled transitions per env step) in a quarter of the iterations:
-# on one H100 the MJX run trains in 28 s instead of 85 s, on this CPU in about the same time,
-# and both scored higher (0.945 / 0.961 vs 0.940 / 0.934; benchmarks/results/*_robot_*).
-TRAIN_DEFAULTS: dict[str, Any] = {
-    "num_envs": 64,
-    "batch_size": 512,
-    "total_timesteps": 2_000_000,
-    "gamma": 0.95,
-    "n_step": 3,
-    "eps_decay_steps": 400_000,
-    "log_interval": 100_000,
-}
-
-
 def _positive(v: Any) -> bool:
     ok = isinstance(v, (int, float)) and not isinstance(v, bool)
     return ok and math.isfinite(v) and v > 0

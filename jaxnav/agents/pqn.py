@@ -1,0 +1,47 @@
+"""PQN's targets (Gallici et al. 2024, "Simplifying Deep Temporal Difference Learning"):
+lambda-returns over a rollout of many parallel envs, bootstrapped from the online network.
+
+PQN has no replay buffer and no target network: each iteration collects ``rollout_length``
+steps of every env, computes these targets once with the current parameters, and regresses
+the LayerNorm Q-network (``dqn.QNetwork(layer_norm=True)``) onto them for a few epochs of
+minibatches (``jaxnav.train``).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+
+def lambda_returns(
+    reward: jax.Array,
+    terminated: jax.Array,
+    done: jax.Array,
+    next_value: jax.Array,
+    gamma: jax.Array,
+    lam: jax.Array,
+) -> jax.Array:
+    """Targets ``G[t]`` of a rollout laid out [time, env, ...].
+
+    ``next_value[t]`` is ``max_a Q(s'_t, a)`` for the observation after step t (the final
+    observation where the episode ended). Backwards from the rollout's last step::
+
+        G[T-1] = r[T-1] + gamma (1 - term[T-1]) next_value[T-1]
+        G[t]   = r[t] + gamma (1 - term[t]) next_value[t]                        if done[t]
+        G[t]   = r[t] + gamma ((1 - lam) next_value[t] + lam G[t+1])             otherwise
+
+    so a time limit (``done`` without ``terminated``) bootstraps from the final observation and
+    a terminal state does not bootstrap; returns never cross an episode boundary.
+    """
+
+    def back(g_next, step):
+        r, term, d, v = step
+        mixed = jnp.where(d, v, (1.0 - lam) * v + lam * g_next)
+        g = r + gamma * (1.0 - term.astype(r.dtype)) * mixed
+        return g, g
+
+    # the last step bootstraps fully: its "G[T]" is its own next value
+    _, returns = jax.lax.scan(
+        back, next_value[-1], (reward, terminated, done, next_value), reverse=True
+    )
+    return returns

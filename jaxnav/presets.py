@@ -1,0 +1,69 @@
+"""Training presets: the ``TrainConfig`` values tuned for each (algorithm, env id), in one place.
+
+Fields a preset leaves out keep ``TrainConfig``'s defaults, which are the paper's grid
+experiment with the DQN. ``TrainConfig.for_env(env, algo=...)`` applies the preset, then the
+caller's overrides; the training CLI does the same with its flags.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from jaxnav.registration import registered_envs
+
+# DQN on the robot envs, chosen by measurement (benchmarks/results/robot_sweep*.md): 3-step
+# returns and gamma 0.95 (1-step returns with the grid's gamma 0.9 plateau near 0.86 success on
+# RobotSimple-v0), and a longer run, since paths take ~40 control steps rather than ~10 cells.
+# 64 envs with batch 512 keep the replay ratio of 16 envs with batch 128 (8 sampled transitions
+# per env step) in a quarter of the iterations, and scored higher on one H100 and this CPU
+# (0.945 / 0.961 vs 0.940 / 0.934; benchmarks/results/*_robot_*).
+ROBOT_DQN: dict[str, Any] = {
+    "num_envs": 64,
+    "batch_size": 512,
+    "total_timesteps": 2_000_000,
+    "gamma": 0.95,
+    "n_step": 3,
+    "eps_decay_steps": 400_000,
+    "log_interval": 100_000,
+}
+
+# PQN: LayerNorm network, lambda-returns over rollouts of many envs (Gallici et al. 2024)
+PQN: dict[str, Any] = {
+    "algo": "pqn",
+    "layer_norm": True,
+    "num_envs": 64,
+    "rollout_length": 8,
+    "num_epochs": 2,
+    "num_minibatches": 4,
+    "td_lambda": 0.65,
+    "lr": 1e-3,
+    "lr_end": 1e-4,
+}
+ROBOT_PQN: dict[str, Any] = {
+    **PQN,
+    "num_envs": 256,
+    "rollout_length": 16,
+    "num_minibatches": 8,
+    "total_timesteps": 4_000_000,
+    "gamma": 0.95,
+    "eps_decay_steps": 800_000,
+    "log_interval": 200_000,
+}
+
+_ROBOT_IDS = ("RobotSimple-v0", "RobotComplex-v0", "RobotRandom-v0", "RobotMaze-v0")
+_GRID_IDS = ("GridMaze-v0", "GridMaze-Random-v0")
+# algo -> env id -> preset
+PRESETS: dict[str, dict[str, dict[str, Any]]] = {
+    "dqn": {**dict.fromkeys(_GRID_IDS, {}), **dict.fromkeys(_ROBOT_IDS, ROBOT_DQN)},
+    "pqn": {**dict.fromkeys(_GRID_IDS, PQN), **dict.fromkeys(_ROBOT_IDS, ROBOT_PQN)},
+}
+
+
+def train_defaults(env_id: str, algo: str = "dqn") -> dict[str, Any]:
+    """``TrainConfig`` values tuned for ``algo`` on ``env_id``; ``ValueError`` naming the
+    valid choices for an unknown id or algorithm."""
+    if env_id not in registered_envs():
+        raise ValueError(f"unknown env id {env_id!r}; valid ids: {', '.join(registered_envs())}")
+    if algo not in PRESETS:
+        raise ValueError(f"algo={algo!r}: must be one of {', '.join(PRESETS)}")
+    return dict(PRESETS[algo].get(env_id, {}))
