@@ -196,7 +196,7 @@ PAPER_SETUP: dict[str, Any] = {
 # take ~40 control steps rather than ~10 cells. 64 envs with batch 512 keep the replay ratio of
 # 16 envs with batch 128 (8 sampled transitions per env step) in a quarter of the iterations:
 # on one H100 the MJX run trains in 28 s instead of 85 s, on this CPU in about the same time,
-# and both scored higher (0.945 / 0.961 vs 0.940 / 0.934; benchmarks/results/*_robot_*).
+# and both scored higher (0.945 / 0.961 vs 0.940 / 0.934; benchmarks/results/**/*_robot_*).
 TRAIN_DEFAULTS: dict[str, Any] = {
     "num_envs": 64,
     "batch_size": 512,
