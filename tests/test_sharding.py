@@ -1,4 +1,4 @@
-"""Training sharded over devices (``--devices``): this session has 2 CPU devices (conftest)."""
+"""Training sharded over devices (``--devices``): the tests run with 2 CPU devices (conftest)."""
 
 from __future__ import annotations
 

@@ -10,7 +10,7 @@ drive robot (no wheels: a wheeled model hops and drifts unless the timestep is 0
 writes one env's ``mazes.Walls`` into the model's ``geom_pos``, ``geom_size`` and
 ``geom_rbound`` (vmappable, so every env may have its own layout in one compiled step).
 
-Settings (see ``build_model``; measured for this robot in /work/shared/notes/measured-facts.md):
+Settings (see ``build_model``; each chosen by measuring this robot's model in MJX 3.17):
 
 - ``timestep`` x ``substeps`` = one 0.1 s control step: 0.02 s x 5 by default here; the env
   uses 0.05 s x 2 (``RobotConfig.mjx_substeps``), about 2x the throughput of 5 substeps with the
