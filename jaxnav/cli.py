@@ -30,7 +30,7 @@ from jaxnav import programs, run_dir, sharding
 from jaxnav.agents import dqn
 from jaxnav.checkpoints import Checkpoints
 from jaxnav.config import MAX_STEPS, TrainConfig
-from jaxnav.evaluate import evaluate_seeds, mean_of
+from jaxnav.evaluate import evaluate_seeds, mean_of, seed_statistics
 from jaxnav.registration import registered_envs, train_defaults
 from jaxnav.train import DIVERGENCE_QUANTITIES, METRIC_NAMES, Trainer
 
@@ -67,6 +67,9 @@ HELP = {
     "log_interval": "env steps per metrics row and progress line",
     "eval_episodes": "greedy evaluation episodes at the end",
 }
+
+
+SEED_STATISTICS = ("success_rate", "worst10_success")  # with IQM and intervals over seeds
 
 
 class UsageError(Exception):
@@ -650,20 +653,51 @@ def _stop_on_signals(received: list[int]) -> Callable[[], None]:
     return restore
 
 
-def print_eval_table(env: str, rows: dict[str, dict[str, float]]) -> None:
-    cols = (
-        "success_rate",
-        "collision_rate",
-        "timeout_rate",
-        "mean_return",
-        "mean_steps",
-        "mean_path_ratio",
-    )
-    print(f"\n{env}: {next(iter(rows.values()))['episodes']:.0f} episodes per policy")
-    print("| policy | " + " | ".join(cols) + " |")
-    print("|---" * (len(cols) + 1) + "|")
+EVAL_COLUMNS = (
+    "success_rate",
+    "collision_rate",
+    "timeout_rate",
+    "worst10_success",
+    "mean_return",
+    "mean_steps",
+    "mean_path_ratio",
+)
+
+
+def format_value(value: float | None, digits: int = 3) -> str:
+    """A table cell: ``n/a`` for a value not measured (None or NaN)."""
+    if value is None or value != value:
+        return "n/a"
+    return f"{value:.{digits}f}"
+
+
+def print_eval_table(env: str, rows: dict[str, dict[str, float | None]]) -> None:
+    """Means over seeds per policy; ``worst10_success`` is the mean success of the 10% of
+    mazes with the lowest success (``evaluate.worst_fraction_mean``)."""
+    first = next(iter(rows.values()))
+    mazes = first.get("mazes")
+    per = f" over {mazes:.0f} mazes" if mazes is not None and mazes > 1 else ""
+    print(f"\n{env}: {first['episodes']:.0f} episodes per policy{per}")
+    print("| policy | " + " | ".join(EVAL_COLUMNS) + " |")
+    print("|---" * (len(EVAL_COLUMNS) + 1) + "|")
     for name, r in rows.items():
-        print(f"| {name} | " + " | ".join(f"{r[c]:.3f}" for c in cols) + " |")
+        print(f"| {name} | " + " | ".join(format_value(r.get(c)) for c in EVAL_COLUMNS) + " |")
+
+
+def format_interval(stat: dict[str, Any], key: str) -> str:
+    """``0.912 [0.880, 0.940]`` from ``evaluate.seed_statistics``'s ``key`` and ``key_ci95``."""
+    ci = stat[f"{key}_ci95"]
+    tail = "" if ci is None else f" [{ci[0]:.3f}, {ci[1]:.3f}]"
+    return format_value(stat[key]) + tail
+
+
+def print_seed_statistics(stats: dict[str, dict[str, Any]]) -> None:
+    """Per metric over seeds: mean and IQM with 95% bootstrap intervals, and the seed count."""
+    for metric, st in stats.items():
+        print(
+            f"{metric} over {st['seeds']} seeds: mean {format_interval(st, 'mean')}, "
+            f"IQM {format_interval(st, 'iqm')} (95% bootstrap intervals)"
+        )
 
 
 def evaluate_parser() -> argparse.ArgumentParser:
@@ -707,7 +741,9 @@ def evaluate_main(argv: Sequence[str] | None = None) -> int:
     except (UsageError, ValueError, FileNotFoundError) as e:
         return _fail(prog, str(e))
     enable_compilation_cache()
-    rows = evaluate_seeds(trainer, params, args.episodes, args.seed, args.policy)
+    rows = evaluate_seeds(trainer, params, args.episodes, args.seed, args.policy, per_maze=True)
+    mazes = trainer.env.num_layouts(trainer.env_params)
+    stats = {m: seed_statistics([r[m] for r in rows]) for m in SEED_STATISTICS}
     result = {
         "run": str(args.run),
         "env": config.env,
@@ -715,10 +751,19 @@ def evaluate_main(argv: Sequence[str] | None = None) -> int:
         "policy": args.policy,
         "episodes": args.episodes,
         "seed": args.seed,
+        "episodes_per_maze": args.episodes / mazes,
         **mean_of(rows),
+        "over_seeds": stats,
         "per_seed": rows,
     }
     run_dir.write_json(out, result)
     print_eval_table(config.env, {args.policy: mean_of(rows)})
+    if args.episodes % mazes:
+        print(
+            f"note: {args.episodes} episodes over {mazes} mazes: round-robin, "
+            f"{args.episodes // mazes} or {args.episodes // mazes + 1} per maze"
+        )
+    if len(rows) > 1:
+        print_seed_statistics(stats)
     print(f"wrote {out}")
     return 0
