@@ -114,7 +114,8 @@ def _devices(text: str) -> int | str:
         ) from None
 
 
-def _env_arg(text: str) -> tuple[str, Any]:
+def parse_env_arg(text: str) -> tuple[str, Any]:
+    """``KEY=VALUE`` to ``(key, value)``, the value as JSON where it parses, else a string."""
     key, sep, value = text.partition("=")
     if not sep or not key:
         raise argparse.ArgumentTypeError(f"invalid override {text!r} (use KEY=VALUE)")
@@ -127,7 +128,7 @@ def _env_arg(text: str) -> tuple[str, Any]:
 def _add_env_args(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--env-arg",
-        type=_env_arg,
+        type=parse_env_arg,
         action="append",
         default=[],
         metavar="KEY=VALUE",
@@ -716,6 +717,23 @@ def evaluate_parser() -> argparse.ArgumentParser:
     return p
 
 
+def load_run_on(
+    run: Path, env: str, env_kwargs: dict[str, Any]
+) -> tuple[TrainConfig, Trainer, Any]:
+    """``(config, trainer, params)`` of the trained run directory ``run`` set up on ``env``
+    with exactly ``env_kwargs``; ``ValueError`` (or ``FileNotFoundError``) where the run or the
+    env is bad or the env's observations do not fit the run's network."""
+    config = run_dir.load_config(run)
+    config = dataclasses.replace(config, env=env, env_kwargs=dict(env_kwargs))
+    config.validate()
+    trainer = Trainer(config)
+    network = run_dir.load_network(run)
+    onehot = network.get("onehot_sizes")  # runs before it was saved had none
+    want = (network["obs_size"], None if onehot is None else tuple(onehot))
+    dqn.check_input_fits(config.env, trainer.network_input, want)
+    return config, trainer, run_dir.load_trained_params(run, trainer)
+
+
 def evaluate_main(argv: Sequence[str] | None = None) -> int:
     prog = "jaxnav.evaluate"
     try:
@@ -724,20 +742,13 @@ def evaluate_main(argv: Sequence[str] | None = None) -> int:
             raise ValueError(f"--episodes {args.episodes}: must be in [1, 10000000]")
         if args.seed < 0:
             raise ValueError(f"--seed {args.seed}: must be non-negative")
-        config = run_dir.load_config(args.run)
         env, overrides = env_from_args(args, args.env)
+        config = run_dir.load_config(args.run)
         env_kwargs = {**(config.env_kwargs if env is None else {}), **overrides}
-        config = dataclasses.replace(config, env=env or config.env, env_kwargs=env_kwargs)
-        config.validate()
-        trainer = Trainer(config)
-        network = run_dir.load_network(args.run)
-        onehot = network.get("onehot_sizes")  # runs before it was saved had none
-        want = (network["obs_size"], None if onehot is None else tuple(onehot))
-        dqn.check_input_fits(config.env, trainer.network_input, want)
         out = args.out or args.run / "eval.json"
         if not out.parent.is_dir():
             raise ValueError(f"--out {out}: directory {out.parent} does not exist")
-        params = run_dir.load_trained_params(args.run, trainer)
+        config, trainer, params = load_run_on(args.run, env or config.env, env_kwargs)
     except (UsageError, ValueError, FileNotFoundError) as e:
         return _fail(prog, str(e))
     enable_compilation_cache()
