@@ -224,7 +224,7 @@ def test_agent(
 
 def summarize_seeds(episodes: dict[str, np.ndarray]) -> list[dict[str, float | None]]:
     """``evaluate.summarize`` per seed, plus the mean length over all episodes; the path ratio
-    is None where no shortest path is known (robot)."""
+    is None where no shortest path is known."""
     rows = []
     for i in range(episodes["success"].shape[0]):
         one = {k: v[i] for k, v in episodes.items()}
@@ -379,7 +379,8 @@ def results_markdown(results: dict[str, Any]) -> str:
         f"# {results['experiment']}\n",
         f"Mean ± 95% t-interval over {n_seeds} seeds (random agent: {n_seeds} policy keys); "
         "each agent meets the same fixed test episodes of a suite. Mean steps and path ratio "
-        "(steps / BFS shortest path, grid only) are over successful episodes.\n\n",
+        "(path travelled / shortest path: grid steps / BFS moves, robot metres / "
+        "geodesic metres less the goal radius) are over successful episodes.\n\n",
         head,
     ]
     for suite_name, suite in results["suites"].items():
