@@ -30,7 +30,7 @@ from jaxnav import programs, run_dir, sharding
 from jaxnav.agents import dqn
 from jaxnav.checkpoints import Checkpoints
 from jaxnav.config import MAX_STEPS, TrainConfig
-from jaxnav.evaluate import evaluate_seeds, mean_of
+from jaxnav.evaluate import evaluate_seeds, mean_of, seed_statistics
 from jaxnav.presets import train_defaults
 from jaxnav.registration import registered_envs
 from jaxnav.train import DIVERGENCE_QUANTITIES, METRIC_NAMES, Trainer
@@ -78,6 +78,9 @@ HELP = {
 }
 
 
+SEED_STATISTICS = ("success_rate", "worst10_success")  # with IQM and intervals over seeds
+
+
 class UsageError(Exception):
     """Bad command-line input: reported as one line, exit code 2."""
 
@@ -120,7 +123,8 @@ def _devices(text: str) -> int | str:
         ) from None
 
 
-def _env_arg(text: str) -> tuple[str, Any]:
+def parse_env_arg(text: str) -> tuple[str, Any]:
+    """``KEY=VALUE`` to ``(key, value)``, the value as JSON where it parses, else a string."""
     key, sep, value = text.partition("=")
     if not sep or not key:
         raise argparse.ArgumentTypeError(f"invalid override {text!r} (use KEY=VALUE)")
@@ -133,7 +137,7 @@ def _env_arg(text: str) -> tuple[str, Any]:
 def _add_env_args(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--env-arg",
-        type=_env_arg,
+        type=parse_env_arg,
         action="append",
         default=[],
         metavar="KEY=VALUE",
@@ -659,20 +663,51 @@ def _stop_on_signals(received: list[int]) -> Callable[[], None]:
     return restore
 
 
-def print_eval_table(env: str, rows: dict[str, dict[str, float]]) -> None:
-    cols = (
-        "success_rate",
-        "collision_rate",
-        "timeout_rate",
-        "mean_return",
-        "mean_steps",
-        "mean_path_ratio",
-    )
-    print(f"\n{env}: {next(iter(rows.values()))['episodes']:.0f} episodes per policy")
-    print("| policy | " + " | ".join(cols) + " |")
-    print("|---" * (len(cols) + 1) + "|")
+EVAL_COLUMNS = (
+    "success_rate",
+    "collision_rate",
+    "timeout_rate",
+    "worst10_success",
+    "mean_return",
+    "mean_steps",
+    "mean_path_ratio",
+)
+
+
+def format_value(value: float | None, digits: int = 3) -> str:
+    """A table cell: ``n/a`` for a value not measured (None or NaN)."""
+    if value is None or value != value:
+        return "n/a"
+    return f"{value:.{digits}f}"
+
+
+def print_eval_table(env: str, rows: dict[str, dict[str, float | None]]) -> None:
+    """Means over seeds per policy; ``worst10_success`` is the mean success of the 10% of
+    mazes with the lowest success (``evaluate.worst_fraction_mean``)."""
+    first = next(iter(rows.values()))
+    mazes = first.get("mazes")
+    per = f" over {mazes:.0f} mazes" if mazes is not None and mazes > 1 else ""
+    print(f"\n{env}: {first['episodes']:.0f} episodes per policy{per}")
+    print("| policy | " + " | ".join(EVAL_COLUMNS) + " |")
+    print("|---" * (len(EVAL_COLUMNS) + 1) + "|")
     for name, r in rows.items():
-        print(f"| {name} | " + " | ".join(f"{r[c]:.3f}" for c in cols) + " |")
+        print(f"| {name} | " + " | ".join(format_value(r.get(c)) for c in EVAL_COLUMNS) + " |")
+
+
+def format_interval(stat: dict[str, Any], key: str) -> str:
+    """``0.912 [0.880, 0.940]`` from ``evaluate.seed_statistics``'s ``key`` and ``key_ci95``."""
+    ci = stat[f"{key}_ci95"]
+    tail = "" if ci is None else f" [{ci[0]:.3f}, {ci[1]:.3f}]"
+    return format_value(stat[key]) + tail
+
+
+def print_seed_statistics(stats: dict[str, dict[str, Any]]) -> None:
+    """Per metric over seeds: mean and IQM with 95% bootstrap intervals, and the seed count."""
+    for metric, st in stats.items():
+        print(
+            f"{metric} over {st['seeds']} seeds: mean {format_interval(st, 'mean')}, "
+            f"IQM {format_interval(st, 'iqm')} (95% bootstrap intervals)"
+        )
 
 
 def evaluate_parser() -> argparse.ArgumentParser:
@@ -691,6 +726,23 @@ def evaluate_parser() -> argparse.ArgumentParser:
     return p
 
 
+def load_run_on(
+    run: Path, env: str, env_kwargs: dict[str, Any]
+) -> tuple[TrainConfig, Trainer, Any]:
+    """``(config, trainer, params)`` of the trained run directory ``run`` set up on ``env``
+    with exactly ``env_kwargs``; ``ValueError`` (or ``FileNotFoundError``) where the run or the
+    env is bad or the env's observations do not fit the run's network."""
+    config = run_dir.load_config(run)
+    config = dataclasses.replace(config, env=env, env_kwargs=dict(env_kwargs))
+    config.validate()
+    trainer = Trainer(config)
+    network = run_dir.load_network(run)
+    onehot = network.get("onehot_sizes")  # runs before it was saved had none
+    want = (network["obs_size"], None if onehot is None else tuple(onehot))
+    dqn.check_input_fits(config.env, trainer.network_input, want)
+    return config, trainer, run_dir.load_trained_params(run, trainer)
+
+
 def evaluate_main(argv: Sequence[str] | None = None) -> int:
     prog = "jaxnav.evaluate"
     try:
@@ -699,24 +751,19 @@ def evaluate_main(argv: Sequence[str] | None = None) -> int:
             raise ValueError(f"--episodes {args.episodes}: must be in [1, 10000000]")
         if args.seed < 0:
             raise ValueError(f"--seed {args.seed}: must be non-negative")
-        config = run_dir.load_config(args.run)
         env, overrides = env_from_args(args, args.env)
+        config = run_dir.load_config(args.run)
         env_kwargs = {**(config.env_kwargs if env is None else {}), **overrides}
-        config = dataclasses.replace(config, env=env or config.env, env_kwargs=env_kwargs)
-        config.validate()
-        trainer = Trainer(config)
-        network = run_dir.load_network(args.run)
-        onehot = network.get("onehot_sizes")  # runs before it was saved had none
-        want = (network["obs_size"], None if onehot is None else tuple(onehot))
-        dqn.check_input_fits(config.env, trainer.network_input, want)
         out = args.out or args.run / "eval.json"
         if not out.parent.is_dir():
             raise ValueError(f"--out {out}: directory {out.parent} does not exist")
-        params = run_dir.load_trained_params(args.run, trainer)
+        config, trainer, params = load_run_on(args.run, env or config.env, env_kwargs)
     except (UsageError, ValueError, FileNotFoundError) as e:
         return _fail(prog, str(e))
     enable_compilation_cache()
-    rows = evaluate_seeds(trainer, params, args.episodes, args.seed, args.policy)
+    rows = evaluate_seeds(trainer, params, args.episodes, args.seed, args.policy, per_maze=True)
+    mazes = trainer.env.num_layouts(trainer.env_params)
+    stats = {m: seed_statistics([r[m] for r in rows]) for m in SEED_STATISTICS}
     result = {
         "run": str(args.run),
         "env": config.env,
@@ -724,10 +771,19 @@ def evaluate_main(argv: Sequence[str] | None = None) -> int:
         "policy": args.policy,
         "episodes": args.episodes,
         "seed": args.seed,
+        "episodes_per_maze": args.episodes / mazes,
         **mean_of(rows),
+        "over_seeds": stats,
         "per_seed": rows,
     }
     run_dir.write_json(out, result)
     print_eval_table(config.env, {args.policy: mean_of(rows)})
+    if args.episodes % mazes:
+        print(
+            f"note: {args.episodes} episodes over {mazes} mazes: round-robin, "
+            f"{args.episodes // mazes} or {args.episodes // mazes + 1} per maze"
+        )
+    if len(rows) > 1:
+        print_seed_statistics(stats)
     print(f"wrote {out}")
     return 0

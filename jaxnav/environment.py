@@ -86,6 +86,37 @@ class Environment(Generic[StateT, ParamsT]):
         """One transition: ``(obs, state, reward, terminated, info)``; must advance ``time``."""
         raise NotImplementedError
 
+    # -- evaluation hooks -------------------------------------------------------------
+    # Defaults for an env with one layout and no known shortest paths; envs with a bank of
+    # layouts (mazes) or with shortest paths override them.
+    def num_layouts(self, params: ParamsT) -> int:
+        """Layouts (mazes) in the env's bank, a Python int; fresh episodes draw one of them."""
+        return 1
+
+    def reset_layout(
+        self, key: jax.Array, params: ParamsT, layout: jax.Array
+    ) -> tuple[jax.Array, StateT]:
+        """A fresh episode like ``reset_env`` but in bank layout ``layout`` (start and goal still
+        drawn from ``key``), so an evaluation can give every layout the same number of episodes.
+        """
+        del layout  # one layout
+        return self.reset_env(key, params)
+
+    def layout_index(self, state: StateT) -> jax.Array:
+        """The bank layout ``state``'s episode runs in (int32; 0 with one layout)."""
+        return jnp.zeros(state.time.shape, jnp.int32)
+
+    def shortest_path_length(self, state: StateT, params: ParamsT) -> jax.Array:
+        """Length of the shortest path from ``state``'s position to its goal, in the units of
+        ``step_length``; -1 where it is not known."""
+        return jnp.full(state.time.shape, -1.0)
+
+    def step_length(self, state: StateT, next_state: StateT, params: ParamsT) -> jax.Array:
+        """Path length travelled by the step from ``state`` to ``next_state`` (default: 1, one
+        step). Summed over an episode and divided by ``shortest_path_length`` at its start, it
+        gives the path ratio of ``jaxnav.evaluate``."""
+        return jnp.ones(state.time.shape)
+
     # -- public API -----------------------------------------------------------------
     def reset(self, key: jax.Array, params: ParamsT | None = None) -> tuple[jax.Array, StateT]:
         return self.reset_env(key, self.default_params if params is None else params)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any
 
@@ -22,6 +23,13 @@ def random_policy(num_actions: int) -> Policy:
     return lambda key, obs: jax.random.randint(key, obs.shape[:1], 0, num_actions)
 
 
+def layout_assignment(num_episodes: int, num_layouts: int) -> np.ndarray:
+    """The layout of each evaluation episode: round-robin, episode i in layout i mod
+    ``num_layouts``, so every layout gets ``num_episodes // num_layouts`` episodes and the first
+    ``num_episodes % num_layouts`` one more."""
+    return np.arange(num_episodes, dtype=np.int32) % num_layouts
+
+
 def run_episodes(
     env: Environment,
     params: EnvParams,
@@ -34,10 +42,13 @@ def run_episodes(
     least the env's time limit); per-episode outcomes.
 
     The episodes are fixed by ``key`` (the same key gives every agent the same test suite).
+    Their layouts (mazes) of the env's bank are assigned round-robin (``layout_assignment``),
+    not drawn, so per-layout results rest on a known number of episodes each.
     """
     k_reset, k_run = jax.random.split(key)
-    obs, state = jax.vmap(env.reset, in_axes=(0, None))(
-        jax.random.split(k_reset, num_episodes), params
+    layouts = jnp.asarray(layout_assignment(num_episodes, env.num_layouts(params)))
+    obs, state = jax.vmap(env.reset_layout, in_axes=(0, None, 0))(
+        jax.random.split(k_reset, num_episodes), params, layouts
     )
     return play(env, params, policy, k_run, obs, state, max_steps)
 
@@ -55,21 +66,27 @@ def play(
     """Play the episodes that start at ``(obs, state)`` (a batch, e.g. from ``env.reset_to``
     for a fixed test suite) for ``max_steps`` steps; per-episode outcomes.
 
+    Outcomes: ``return``, ``steps``, ``success``, ``collision``, ``timeout``, ``layout`` (the
+    bank layout), ``shortest_path`` (``env.shortest_path_length`` at the start, -1 where not
+    known) and ``path_length`` (the sum of ``env.step_length`` over the episode).
+
     Steps without auto-reset: an ended episode's state stays as it ended, so ``record=True``
     also returns ``"states"``, the batch's states before the first step and after each one
     (leading axis ``max_steps + 1``), the final pose included.
     """
     num_episodes = obs.shape[0]
-    shortest = getattr(state, "shortest_path", jnp.full(num_episodes, -1, jnp.int32))
+    shortest = jax.vmap(env.shortest_path_length, in_axes=(0, None))(state, params)
+    layout = jax.vmap(env.layout_index)(state)
+    step_length = jax.vmap(env.step_length, in_axes=(0, 0, None))
     zeros = jnp.zeros(num_episodes)
     false = jnp.zeros(num_episodes, bool)
-    init = (obs, state, false, zeros, zeros, false, false, false)
+    init = (obs, state, false, zeros, zeros, zeros, false, false, false)
     freeze = lambda ended, old, new: jax.tree.map(  # noqa: E731
         lambda o, n: jnp.where(ended.reshape(ended.shape + (1,) * (n.ndim - 1)), o, n), old, new
     )
 
     def step(carry, key):
-        obs, state, ended, ret, steps, success, collision, timeout = carry
+        obs, state, ended, ret, steps, path, success, collision, timeout = carry
         k_pol, k_env = jax.random.split(key)
         action = policy(k_pol, obs)
         new_obs, new_state, reward, terminated, info = jax.vmap(
@@ -79,16 +96,17 @@ def play(
         live = ~ended
         ret = ret + jnp.where(live, reward, 0.0)
         steps = steps + live
+        path = path + jnp.where(live, step_length(state, new_state, params), 0.0)
         success = success | (live & info["goal_reached"])
         collision = collision | (live & info["collision"])
         timeout = timeout | (live & truncated)
         obs, state = freeze(ended, (obs, state), (new_obs, new_state))
         ended = ended | terminated | truncated
-        carry = (obs, state, ended, ret, steps, success, collision, timeout)
+        carry = (obs, state, ended, ret, steps, path, success, collision, timeout)
         return carry, (state if record else None)
 
     carry, states = jax.lax.scan(step, init, jax.random.split(key, max_steps))
-    _, _, _, ret, steps, success, collision, timeout = carry
+    _, _, _, ret, steps, path, success, collision, timeout = carry
     out = {
         "return": ret,
         "steps": steps,
@@ -96,29 +114,69 @@ def play(
         "collision": collision,
         "timeout": timeout,
         "shortest_path": shortest,
+        "path_length": path,
+        "layout": layout,
     }
     if record:
         out["states"] = jax.tree.map(lambda a, b: jnp.concatenate([a[None], b]), state, states)
     return out
 
 
-def summarize(episodes: dict[str, jax.Array]) -> dict[str, float]:
-    """Rates over all episodes; steps and path ratio over successful ones."""
-    success = episodes["success"]
-    n_success = jnp.maximum(success.sum(), 1)
-    ratio = episodes["steps"] / jnp.maximum(episodes["shortest_path"], 1)
-    has_path = episodes["shortest_path"] > 0
-    n_ratio = jnp.maximum((success & has_path).sum(), 1)
-    out = {
-        "episodes": success.shape[0],
-        "success_rate": success.mean(),
-        "collision_rate": episodes["collision"].mean(),
-        "timeout_rate": episodes["timeout"].mean(),
-        "mean_return": episodes["return"].mean(),
-        "mean_steps": jnp.where(success, episodes["steps"], 0).sum() / n_success,
-        "mean_path_ratio": jnp.where(success & has_path, ratio, 0).sum() / n_ratio,
+def maze_success(episodes: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
+    """``(success rate, episodes)`` of each layout (maze) 0 .. max layout played, grouped by
+    ``episodes["layout"]`` (a layout without episodes has rate NaN and count 0)."""
+    layout = np.asarray(episodes["layout"]).astype(np.int64)
+    success = np.asarray(episodes["success"], float)
+    counts = np.bincount(layout)
+    wins = np.bincount(layout, weights=success, minlength=len(counts))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return wins / counts, counts
+
+
+def worst_fraction_mean(per_maze: np.ndarray, fraction: float = 0.1) -> float:
+    """Mean of the lowest ``ceil(fraction * M)`` of ``per_maze``, the success rates of M
+    mazes (NaN entries, mazes without episodes, are left out; NaN if none is left).
+
+    With ``fraction=0.1`` this is the worst-10% success: sort the mazes by success rate and
+    average the lowest ``ceil(0.1 * M)`` of them, so at least one maze (the worst one for
+    M <= 10), 100 of M = 1000. NaN if no maze has episodes.
+    """
+    x = np.sort(np.asarray(per_maze, float)[~np.isnan(per_maze)])
+    if len(x) == 0:
+        return float("nan")
+    return float(x[: math.ceil(fraction * len(x))].mean())
+
+
+def summarize(episodes: dict[str, jax.Array]) -> dict[str, float | None]:
+    """Rates over all episodes; steps and path ratio over successful ones.
+
+    ``mean_path_ratio``: path length travelled / shortest path length at the start
+    (``env.step_length``, ``env.shortest_path_length``) over successful episodes whose shortest
+    path is known; None where there are none (never 0 for something not measured).
+    ``worst10_success``: ``worst_fraction_mean`` of the per-maze success rates
+    (``maze_success``); ``mazes``: the mazes played.
+    """
+    ep = {k: np.asarray(v) for k, v in episodes.items()}
+    success = ep["success"].astype(bool)
+    n_success = max(int(success.sum()), 1)
+    shortest = ep["shortest_path"].astype(float)
+    has_path = success & (shortest > 0)
+    travelled = ep.get("path_length", ep["steps"]).astype(float)
+    per_maze, counts = maze_success(ep) if "layout" in ep else (np.array([success.mean()]), [1])
+    out: dict[str, float | None] = {
+        "episodes": float(success.shape[0]),
+        "success_rate": float(success.mean()),
+        "collision_rate": float(ep["collision"].mean()),
+        "timeout_rate": float(ep["timeout"].mean()),
+        "mean_return": float(ep["return"].mean()),
+        "mean_steps": float(np.where(success, ep["steps"], 0).sum() / n_success),
+        "mean_path_ratio": (
+            float((travelled[has_path] / shortest[has_path]).mean()) if has_path.any() else None
+        ),
+        "mazes": float(np.count_nonzero(np.asarray(counts))),
+        "worst10_success": worst_fraction_mean(per_maze, 0.1),
     }
-    return {k: float(v) for k, v in out.items()}
+    return out
 
 
 def evaluate(
@@ -131,9 +189,16 @@ def evaluate(
 
 
 def evaluate_seeds(
-    trainer: Trainer, params: Any, episodes: int, seed: int, policy: str = "trained"
-) -> list[dict[str, float]]:
-    """Greedy (or random) evaluation of each seed's parameters on the same fresh episodes."""
+    trainer: Trainer,
+    params: Any,
+    episodes: int,
+    seed: int,
+    policy: str = "trained",
+    per_maze: bool = False,
+) -> list[dict[str, Any]]:
+    """Greedy (or random) evaluation of each seed's parameters on the same fresh episodes
+    (layouts round-robin, ``run_episodes``); ``per_maze`` adds each seed's per-maze success
+    rates (``maze_success``) as the list ``"maze_success"``."""
     env, env_params = trainer.env, trainer.env_params
     key = jax.random.key(seed)
     max_steps = int(env_params.max_steps_in_episode)
@@ -142,13 +207,76 @@ def evaluate_seeds(
         pol = trainer.greedy_policy(p) if policy == "trained" else random_policy(env.num_actions)
         return run_episodes(env, env_params, pol, key, episodes, max_steps)
 
-    out = jax.jit(jax.vmap(one))(params)
+    out = jax.device_get(jax.jit(jax.vmap(one))(params))
     n = jax.tree.leaves(params)[0].shape[0]
-    return [summarize(jax.tree.map(lambda x, i=i: x[i], out)) for i in range(n)]
+    rows: list[dict[str, Any]] = []
+    for i in range(n):
+        one_seed = jax.tree.map(lambda x, i=i: x[i], out)
+        row: dict[str, Any] = dict(summarize(one_seed))
+        if per_maze:
+            row["maze_success"] = [
+                None if np.isnan(v) else float(v) for v in maze_success(one_seed)[0]
+            ]
+        rows.append(row)
+    return rows
 
 
-def mean_of(rows: Sequence[dict[str, float]]) -> dict[str, float]:
-    return {k: float(np.mean([r[k] for r in rows])) for k in rows[0]}
+def mean_of(rows: Sequence[dict[str, Any]]) -> dict[str, float | None]:
+    """Per metric, the mean over ``rows`` (seeds) of the values that are numbers (None where
+    no row has one); lists (per-maze values) are left out."""
+    out: dict[str, float | None] = {}
+    for k in rows[0]:
+        if isinstance(rows[0][k], (list, tuple, dict)):
+            continue
+        vals = [r[k] for r in rows if r.get(k) is not None]
+        out[k] = float(np.mean(vals)) if vals else None
+    return out
+
+
+# ------------------------------------------------------------------ statistics over seeds
+def iqm(values: Sequence[float]) -> float:
+    """Interquartile mean: the mean of the middle half, ``floor(n / 4)`` values cut from each
+    end of the sorted values (as ``scipy.stats.trim_mean(x, 0.25)``; the mean for n < 4)."""
+    x = np.sort(np.asarray(values, float))
+    cut = len(x) // 4
+    return float(x[cut : len(x) - cut].mean())
+
+
+def bootstrap_ci(
+    values: Sequence[float],
+    statistic: Callable[[np.ndarray], float] = np.mean,
+    num_resamples: int = 2000,
+    confidence: float = 0.95,
+    seed: int = 0,
+) -> tuple[float, float] | None:
+    """Percentile bootstrap interval of ``statistic`` over ``values`` (one per seed):
+    ``num_resamples`` resamples of the seeds with replacement (a fixed ``seed``, so the same
+    values give the same interval); None for fewer than 2 values."""
+    x = np.asarray(values, float)
+    if len(x) < 2:
+        return None
+    idx = np.random.default_rng(seed).integers(0, len(x), (num_resamples, len(x)))
+    stats = np.array([statistic(x[i]) for i in idx])
+    tail = 100 * (1 - confidence) / 2
+    lo, hi = np.percentile(stats, [tail, 100 - tail])
+    return float(lo), float(hi)
+
+
+def seed_statistics(values: Sequence[float | None]) -> dict[str, Any]:
+    """Over seeds: ``seeds`` (values that are numbers), ``mean``, ``iqm`` and their 95%
+    bootstrap intervals ``mean_ci95`` / ``iqm_ci95`` (``[lo, hi]``, None for one seed); None
+    statistics where no seed has a value."""
+    x = [float(v) for v in values if v is not None and not np.isnan(v)]
+    if not x:
+        return {"seeds": 0, "mean": None, "mean_ci95": None, "iqm": None, "iqm_ci95": None}
+    mean_ci, iqm_ci = bootstrap_ci(x), bootstrap_ci(x, iqm)
+    return {
+        "seeds": len(x),
+        "mean": float(np.mean(x)),
+        "mean_ci95": None if mean_ci is None else list(mean_ci),
+        "iqm": iqm(x),
+        "iqm_ci95": None if iqm_ci is None else list(iqm_ci),
+    }
 
 
 if __name__ == "__main__":

@@ -4,6 +4,7 @@ the random agent on the same fixed test episodes, write a results directory with
     python -m jaxnav.experiments paper-grid  [--quick] [--seeds 5] [--out DIR]
     python -m jaxnav.experiments paper-robot [--quick] [--maze-file FILE]
     python -m jaxnav.experiments plot DIR    # redraw the figures of a results directory
+    python -m jaxnav.experiments generalization RUN... [--family 'ENV_ID K=V ...'] [--out DIR]
 
 Agents: ``dueling-double`` (the paper's model) and ``simple`` (plain DQN: dueling and double
 off), each trained on all seeds at once (``vmap`` over seeds in one compiled program per agent
@@ -42,11 +43,23 @@ from jaxnav.cli import (
     _fail,
     _Parser,
     enable_compilation_cache,
+    format_interval,
+    format_value,
+    load_run_on,
+    one_line,
+    parse_env_arg,
     train_seeds,
 )
 from jaxnav.config import TrainConfig
 from jaxnav.environment import Environment, EnvParams
-from jaxnav.evaluate import play, random_policy, summarize
+from jaxnav.evaluate import (
+    evaluate_seeds,
+    mean_of,
+    play,
+    random_policy,
+    seed_statistics,
+    summarize,
+)
 from jaxnav.registration import env_config, make
 from jaxnav.train import Trainer
 
@@ -211,7 +224,7 @@ def test_agent(
 
 def summarize_seeds(episodes: dict[str, np.ndarray]) -> list[dict[str, float | None]]:
     """``evaluate.summarize`` per seed, plus the mean length over all episodes; the path ratio
-    is None where no shortest path is known (robot)."""
+    is None where no shortest path is known."""
     rows = []
     for i in range(episodes["success"].shape[0]):
         one = {k: v[i] for k, v in episodes.items()}
@@ -366,7 +379,8 @@ def results_markdown(results: dict[str, Any]) -> str:
         f"# {results['experiment']}\n",
         f"Mean ± 95% t-interval over {n_seeds} seeds (random agent: {n_seeds} policy keys); "
         "each agent meets the same fixed test episodes of a suite. Mean steps and path ratio "
-        "(steps / BFS shortest path, grid only) are over successful episodes.\n\n",
+        "(path travelled / shortest path: grid steps / BFS moves, robot metres / "
+        "geodesic metres less the goal radius) are over successful episodes.\n\n",
         head,
     ]
     for suite_name, suite in results["suites"].items():
@@ -397,6 +411,191 @@ def print_rows(suite: str, rows: dict[str, Any]) -> None:
             f"return {_cell(row['mean_return'], 2)}  steps {_cell(row['mean_steps'], 1)}",
             flush=True,
         )
+
+
+# ------------------------------------------------------------------------ generalization
+HELD_OUT_MAZE_SEED = 1_000_003  # maze_seed of the held-out mazes of the run's own env
+EXAMPLE_MAZES = EXAMPLE_MAZE.parent
+# env overrides that choose the mazes: not carried from a run to another family's env (every
+# other override of the run, e.g. its sensors, observation, speed or backend, is)
+MAZE_KEYS = frozenset(
+    {"maze", "maze_file", "maze_seed", "num_layouts", "random_size", "num_wall_slots"}
+    | {"layout_seed", "random_layouts", "goals_per_layout", "obstacle_density", "size"}
+)
+OWN = "own"  # a family's env: the run's own env id, with all its overrides
+GENERALIZATION_METRICS = (
+    "success_rate",
+    "collision_rate",
+    "timeout_rate",
+    "worst10_success",
+    "mean_path_ratio",
+)
+
+
+@dataclasses.dataclass(frozen=True)
+class Family:
+    """Mazes to test on: ``env`` (``OWN``: the run's env and all its overrides; another id:
+    the run's overrides less ``MAZE_KEYS``) with ``env_kwargs`` on top."""
+
+    name: str
+    env: str
+    env_kwargs: dict[str, Any] = dataclasses.field(default_factory=dict)
+
+    def for_run(self, config: TrainConfig) -> tuple[str, dict[str, Any]]:
+        """``(env id, env overrides)`` for a run trained with ``config``."""
+        if self.env == OWN:
+            return config.env, {**config.env_kwargs, **self.env_kwargs}
+        carried = {k: v for k, v in config.env_kwargs.items() if k not in MAZE_KEYS}
+        return self.env, {**carried, **self.env_kwargs}
+
+
+def default_families(config: TrainConfig, maze_seed: int = HELD_OUT_MAZE_SEED) -> list[Family]:
+    """The run's own env on held-out mazes (``maze_seed``, where its env has that field; else
+    its training mazes, named so), RobotSimple-v0, RobotComplex-v0 and every maze file of
+    examples/mazes (RobotMaze-v0)."""
+    fields = {f.name for f in dataclasses.fields(env_config(config.env, **config.env_kwargs))}
+    if "maze_seed" in fields:
+        own = Family(
+            f"{config.env} maze_seed={maze_seed} (held out)", OWN, {"maze_seed": maze_seed}
+        )
+    else:
+        own = Family(f"{config.env} (training mazes: no maze_seed to hold out)", OWN)
+    files = [
+        Family(f"{f.name} (RobotMaze-v0)", "RobotMaze-v0", {"maze_file": str(f)})
+        for f in sorted(EXAMPLE_MAZES.glob("*.txt"))
+    ]
+    robots = [Family(e, e) for e in ("RobotSimple-v0", "RobotComplex-v0")]
+    return [own, *robots, *files]
+
+
+def parse_family(text: str) -> Family:
+    """``"ENV_ID KEY=VALUE ..."`` (``own`` for the run's env) as a ``Family`` named ``text``."""
+    tokens = text.split()
+    if not tokens:
+        raise ValueError(f"--family {text!r}: give an env id, then KEY=VALUE overrides")
+    env, *pairs = tokens
+    kwargs = {}
+    for pair in pairs:
+        try:
+            key, value = parse_env_arg(pair)
+        except argparse.ArgumentTypeError as e:
+            raise ValueError(f"--family {text!r}: {e}") from None
+        kwargs[key] = value
+    return Family(text, env, kwargs)
+
+
+def evaluate_family(
+    runs: Sequence[Path], family: Family, episodes: int, seed: int
+) -> dict[str, Any]:
+    """Every seed of every run on ``family`` (``evaluate.evaluate_seeds``, the same episodes
+    for all): means over seeds, IQM and bootstrap 95% intervals of the success rates
+    (``evaluate.seed_statistics``), per-seed rows; ``skipped`` lists runs the family does not
+    fit (a bad override, observations of another size), with the reason."""
+    rows: list[dict[str, Any]] = []
+    skipped: list[str] = []
+    env_kwargs: dict[str, Any] = {}
+    env = family.env
+    mazes = None
+    for run in runs:
+        try:
+            env, env_kwargs = family.for_run(run_dir.load_config(run))
+            _, trainer, params = load_run_on(run, env, env_kwargs)
+        except (ValueError, FileNotFoundError) as e:
+            skipped.append(f"{run}: {one_line(str(e))}")
+            continue
+        mazes = trainer.env.num_layouts(trainer.env_params)
+        for row in evaluate_seeds(trainer, params, episodes, seed):
+            rows.append({"run": str(run), **row})
+    out: dict[str, Any] = {
+        "env": env,
+        "env_kwargs": env_kwargs,
+        "mazes": mazes,
+        "episodes": episodes,
+        "seeds": len(rows),
+        "skipped": skipped,
+    }
+    if rows:
+        means = mean_of([{k: v for k, v in r.items() if k != "run"} for r in rows])
+        out["mean"] = {m: means[m] for m in GENERALIZATION_METRICS}
+        out["over_seeds"] = {
+            m: seed_statistics([r[m] for r in rows]) for m in ("success_rate", "worst10_success")
+        }
+    out["per_seed"] = rows
+    return out
+
+
+def generalization_markdown(results: dict[str, Any]) -> str:
+    """One row per family: means over seeds, success IQM with its 95% bootstrap interval."""
+    lines = [
+        "# Generalization\n\n",
+        f"Runs: {', '.join(results['runs'])}. {results['episodes']} episodes per family and "
+        "seed, round-robin over the family's mazes. Success, collision, timeout, worst-10% "
+        "success (the mean success of the ceil(10%) of mazes with the lowest success) and path "
+        "ratio (path travelled / shortest path, successful episodes; n/a where no shortest "
+        "path is known) are means over seeds; IQM of the per-seed success with a 95% "
+        "percentile bootstrap interval over seeds.\n\n",
+        "| family | seeds | mazes | success | collision | timeout | worst-10% success | "
+        "success IQM [95% CI] | path ratio |\n",
+        "|---" * 9 + "|\n",
+    ]
+    for name, fam in results["families"].items():
+        if not fam["seeds"]:
+            lines.append(f"| {name} | 0 | | | | | | | |\n")
+            continue
+        m = fam["mean"]
+        cells = [format_value(m[k]) for k in GENERALIZATION_METRICS[:4]]
+        iqm_cell = format_interval(fam["over_seeds"]["success_rate"], "iqm")
+        lines.append(
+            f"| {name} | {fam['seeds']} | {fam['mazes']} | "
+            + " | ".join(cells)
+            + f" | {iqm_cell} | {format_value(m['mean_path_ratio'])} |\n"
+        )
+    notes = [
+        f"- {name}: skipped {s}\n" for name, f in results["families"].items() for s in f["skipped"]
+    ]
+    if notes:
+        lines += ["\nNot evaluated:\n\n", *notes]
+    return "".join(lines)
+
+
+def generalization_main(args: argparse.Namespace, command: str) -> int:
+    """``generalization``: evaluate the runs on each family and write results.json/.md."""
+    prog = "jaxnav.experiments"
+    try:
+        if not 1 <= args.episodes <= 10**7:
+            raise ValueError(f"--episodes {args.episodes}: must be in [1, 10000000]")
+        if args.seed < 0:
+            raise ValueError(f"--seed {args.seed}: must be non-negative")
+        configs = [run_dir.load_config(run) for run in args.runs]
+        if args.family:
+            families = [parse_family(f) for f in args.family]
+        else:
+            families = default_families(configs[0], args.maze_seed)
+        out = args.out or Path("runs") / f"generalization-{time.strftime('%Y%m%d-%H%M%S')}"
+        run_dir.check_writable(out)
+    except (UsageError, ValueError, FileNotFoundError) as e:
+        return _fail(prog, str(e))
+    enable_compilation_cache()
+    results: dict[str, Any] = {
+        "experiment": "generalization",
+        "command": command,
+        "runs": [str(r) for r in args.runs],
+        "episodes": args.episodes,
+        "seed": args.seed,
+        "families": {},
+    }
+    for fam in families:
+        res = evaluate_family(args.runs, fam, args.episodes, args.seed)
+        results["families"][fam.name] = res
+        done = f"{res['seeds']} seeds" if res["seeds"] else "skipped"
+        print(f"  {fam.name}: {done}", flush=True)
+    out.mkdir(parents=True, exist_ok=True)
+    run_dir.write_json(out / "results.json", results)
+    table = generalization_markdown(results)
+    (out / "results.md").write_text(table)
+    print(table)
+    print(f"results in {out}")
+    return 0
 
 
 # ---------------------------------------------------------------------------- command line
@@ -437,6 +636,30 @@ def parser() -> argparse.ArgumentParser:
         default="mjx",
         help="robot physics: MuJoCo MJX or the exact pure-JAX unicycle (faster on CPU)",
     )
+    gen = sub.add_parser(
+        "generalization",
+        help="evaluate trained runs on maze families never trained on",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    gen.add_argument("runs", type=Path, nargs="+", metavar="RUN", help="run directories")
+    gen.add_argument(
+        "--family",
+        action="append",
+        metavar="'ENV_ID [KEY=VALUE ...]'",
+        help="a family to test on, repeatable; 'own' as ENV_ID is the run's env with all its "
+        "overrides, another id gets the run's overrides but the maze-picking ones (default: "
+        "own env with a held-out maze_seed, RobotSimple-v0, RobotComplex-v0, each maze file of "
+        "examples/mazes)",
+    )
+    gen.add_argument(
+        "--maze-seed",
+        type=int,
+        default=HELD_OUT_MAZE_SEED,
+        help="maze_seed of the own env's held-out mazes",
+    )
+    gen.add_argument("--episodes", type=int, default=1000, help="episodes per family and seed")
+    gen.add_argument("--seed", type=int, default=0, help="seed of the test episodes")
+    gen.add_argument("--out", type=Path, help="results directory (default: runs/<name>-<time>)")
     plot = sub.add_parser("plot", help="redraw the figures of a results directory")
     plot.add_argument("dir", type=Path)
     return p
@@ -448,6 +671,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         args = parser().parse_args(argv)
         if args.experiment == "plot":
             return _replot(args.dir)
+        if args.experiment == "generalization":
+            command = "python -m jaxnav.experiments " + " ".join(
+                sys.argv[1:] if argv is None else list(argv)
+            )
+            return generalization_main(args, command)
         size = "quick" if args.quick else "smoke" if args.smoke else "paper"
         if not 2 <= args.seeds <= 4096:
             raise UsageError(f"--seeds {args.seeds}: must be in [2, 4096] (a CI needs 2)")

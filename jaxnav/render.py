@@ -71,7 +71,8 @@ def _episode(env: Environment, env_params: EnvParams, out: dict[str, Any], i: in
         "steps": np.int32(steps),
         "outcome": np.int32(outcome),
         "return": np.float32(out["return"][i]),
-        "shortest_path": np.int32(out["shortest_path"][i]),
+        # env.shortest_path_length: grid moves, robot metres (less the goal radius); -1 unknown
+        "shortest_path": np.float32(out["shortest_path"][i]),
     }
     if hasattr(states, "pose"):  # robot: metres already; walls are boxes
         walls = jax.tree.map(lambda x: np.asarray(x[layout]), bank.walls)
@@ -108,8 +109,8 @@ def _episode(env: Environment, env_params: EnvParams, out: dict[str, Any], i: in
 def describe(ep: Episode) -> str:
     outcome = OUTCOMES[int(ep["outcome"])]
     text = f"{outcome} after {int(ep['steps'])} steps, return {float(ep['return']):.1f}"
-    if int(ep["shortest_path"]) > 0:
-        text += f" (shortest {int(ep['shortest_path'])})"
+    if float(ep["shortest_path"]) > 0:
+        text += f" (shortest {float(ep['shortest_path']):.3g})"
     return text
 
 

@@ -370,9 +370,20 @@ class GridMaze(Environment[GridMazeState, GridMazeParams]):
 
     # -- episodes -----------------------------------------------------------------
     def reset_env(self, key: jax.Array, params: GridMazeParams) -> tuple[jax.Array, GridMazeState]:
-        bank = params.bank
         bits = _reset_bits(key)
-        layout = _pick(bits[0] >> 8, bank.num_layouts)
+        layout = _pick(bits[0] >> 8, params.bank.num_layouts)
+        return self._reset_in(bits, layout, params)
+
+    def reset_layout(
+        self, key: jax.Array, params: GridMazeParams, layout: jax.Array
+    ) -> tuple[jax.Array, GridMazeState]:
+        """``reset_env`` in bank layout ``layout`` (the same start and goal slots from ``key``)."""
+        return self._reset_in(_reset_bits(key), jnp.asarray(layout, jnp.int32), params)
+
+    def _reset_in(
+        self, bits: jax.Array, layout: jax.Array, params: GridMazeParams
+    ) -> tuple[jax.Array, GridMazeState]:
+        bank = params.bank
         slot = _pick(((bits[0] & 0xFF) << 8) | (bits[1] & 0xFF), bank.goal_slots.shape[1], 16)
         goal_idx = bank.goal_slots[layout, slot]
         start_idx = _pick(bits[1] >> 8, bank.num_free[layout] - 1)
@@ -409,6 +420,17 @@ class GridMaze(Environment[GridMazeState, GridMazeParams]):
             shortest_path=jnp.asarray(shortest, jnp.int32),
         )
         return self.get_obs(state, params), state
+
+    def num_layouts(self, params: GridMazeParams) -> int:
+        return params.bank.num_layouts
+
+    def layout_index(self, state: GridMazeState) -> jax.Array:
+        return state.layout
+
+    def shortest_path_length(self, state: GridMazeState, params: GridMazeParams) -> jax.Array:
+        """BFS moves from the episode's start to its goal (-1 if unreachable); with the
+        default ``step_length`` of 1 a path ratio is steps / shortest path, as in the paper."""
+        return state.shortest_path.astype(jnp.float32)
 
     def step_env(
         self, key: jax.Array, state: GridMazeState, action: jax.Array, params: GridMazeParams

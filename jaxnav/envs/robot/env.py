@@ -279,9 +279,18 @@ class RobotNav(Environment[RobotState, RobotParams]):
 
     # -- episodes -----------------------------------------------------------------
     def reset_env(self, key: jax.Array, params: RobotParams) -> tuple[jax.Array, RobotState]:
+        k_layout = jax.random.split(key, 4)[0]
+        layout = jax.random.randint(k_layout, (), 0, params.bank.num_mazes)
+        return self.reset_layout(key, params, layout)
+
+    def reset_layout(
+        self, key: jax.Array, params: RobotParams, layout: jax.Array
+    ) -> tuple[jax.Array, RobotState]:
+        """``reset_env`` in bank maze ``layout``: start, goal and heading drawn from ``key`` as
+        there (the layout's draw is left unused)."""
         bank = params.bank
-        k_layout, k_start, k_goal, k_heading = jax.random.split(key, 4)
-        layout = jax.random.randint(k_layout, (), 0, bank.num_mazes)
+        layout = jnp.asarray(layout, jnp.int32)
+        _, k_start, k_goal, k_heading = jax.random.split(key, 4)
         n = bank.num_free[layout]
         start_idx = jax.random.randint(k_start, (), 0, n)
         goal_idx = jax.random.randint(k_goal, (), 0, n - 1)
@@ -358,6 +367,29 @@ class RobotNav(Environment[RobotState, RobotParams]):
         }
         reward = r_goal + r_collision + r_step + r_progress
         return self.get_obs(state, params), state, reward, at_goal | collided, info
+
+    # -- evaluation hooks -----------------------------------------------------------
+    def num_layouts(self, params: RobotParams) -> int:
+        return params.bank.num_mazes
+
+    def layout_index(self, state: RobotState) -> jax.Array:
+        return state.layout
+
+    def shortest_path_length(self, state: RobotState, params: RobotParams) -> jax.Array:
+        """Metres from the robot to where the episode can succeed: the geodesic distance
+        (``goal_distance``, 4-neighbour steps through free cells) less ``goal_radius``, since
+        the episode ends as soon as the robot is that close; -1 where unknown (or not
+        positive). Along a straight corridor this is the least travel a success needs; a robot
+        that cuts a corner diagonally may travel less (path ratio below 1)."""
+        d = self.goal_distance(state.pose, state.goal, state.layout, params)
+        shortest = d - params.goal_radius
+        return jnp.where((d >= 0) & (shortest > 0), shortest, -1.0)
+
+    def step_length(
+        self, state: RobotState, next_state: RobotState, params: RobotParams
+    ) -> jax.Array:
+        """Metres the robot's centre moved in the step (turns on the spot move it 0)."""
+        return jnp.linalg.norm(next_state.pose[:2] - state.pose[:2])
 
     def _collision_boxes(
         self, params: RobotParams, layout: jax.Array
