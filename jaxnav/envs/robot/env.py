@@ -25,9 +25,27 @@ D and the bearing are on by default: with them the DQN reaches 0.96 success on R
 without them it learns far slower (``benchmarks/results/robot_sweep3.md``). ``PAPER_SETUP``
 holds the overrides for the paper's literal speed, reward and observation.
 
-Lasers: 7 analytic ray casts over the front half (-90, -60, ..., +90 degrees from the heading;
-``geometry.laser_angles``) against the maze's wall boxes, from the robot's centre, clipped to
-10 sqrt 2 m.
+With ``obs_absolute=False`` the frame leaves out goal (x, y) and robot (x, y), arena
+coordinates a real robot has none of; D (clipped at 1) and the bearing stay, and the frame no
+longer depends on the arena's size.
+
+Lasers: by default 7 analytic ray casts over the front half (-90, -60, ..., +90 degrees from the
+heading; ``geometry.laser_angles``) against the maze's wall boxes, from the robot's centre,
+clipped to 10 sqrt 2 m. ``num_lasers``, ``laser_fov`` (degrees; 360 spaces the beams evenly all
+around, one straight ahead) and ``laser_range`` (metres, also the normalizer) change them.
+
+Generalist (``RobotNav-v0``, ``GENERALIST``): ``maze="families"``, a bank of 2,048 mazes from
+``generators.py`` (rooms with doors, depth-first corridors 0.5 or 1 m wide, random wall
+segments, pillar halls, some on a smaller sub-arena; 20 x 20 cells of 0.5 m, seed
+``maze_seed``), on the ``kinematic`` backend, with 32 lasers all around (360 degrees),
+``obs_absolute=False`` (frame: 32 lasers, D, bearing; 4 frames, 140 inputs), 40 wall slots
+(the families need at most 39 boxes; mazes that need more are redrawn) and ``max_steps`` 400
+(the longest geodesic start-goal path of 256 resets was 34.5 m, ~140 forward steps). The
+geodesic table keeps ``num_goal_cells`` = 32 goal cells per maze: int16[2048, 32, 20, 20] is
+50 MiB (the full all-pairs table would be 1.25 GiB and 819,200 BFS runs to build); resets draw
+goals from those cells only, so each maze still offers 32 goals x every start. Build time on
+2 CPU cores: about 9 s. ``GENERALIST_SENSORS`` gives the observation's fields to run its policy
+on a maze file (``RobotMaze-v0``, ``maze_file=...``, with ``num_wall_slots`` the maze needs).
 
 Backends: ``mjx`` (the default) steps the robot with MuJoCo MJX (``mjx_backend.py``: a sphere
 on slide/slide/hinge joints with velocity actuators, per-env walls in the model's geom fields),
@@ -63,7 +81,7 @@ MAX_STEP_CELLS = 100  # a control step may cross at most this many cells (bounds
 NUM_LASERS = 7  # the paper's; RobotConfig.num_lasers' default
 # the geodesic table's bytes (int16[B, goals, rows, cols]); beyond this a bank is refused, with
 # a hint to keep fewer goal cells per maze (num_goal_cells)
-MAX_GOAL_TABLE_BYTES = 2**31
+MAX_GOAL_TABLE_BYTES = 2**30  # 1 GiB: every random bank of 10 x 10 mazes allowed today fits
 _UNREACHABLE = -1e15  # where inactive wall slots go for the collision test (squares stay finite)
 
 
@@ -248,6 +266,12 @@ GENERALIST: dict[str, Any] = {
     "laser_fov": 360.0,
     "obs_absolute": False,
     "max_steps": 400,
+}
+# The fields that shape RobotNav-v0's observation: pass them (and a num_wall_slots the maze
+# needs) to run its policy elsewhere, e.g.
+# ``jaxnav.make("RobotMaze-v0", maze_file=path, num_wall_slots=40, **GENERALIST_SENSORS)``
+GENERALIST_SENSORS: dict[str, Any] = {
+    k: GENERALIST[k] for k in ("num_lasers", "laser_fov", "obs_absolute")
 }
 
 # TrainConfig defaults for the robot envs, chosen by measurement
