@@ -172,13 +172,15 @@ GENERATORS: dict[str, Generator] = {
 
 def check_families(families: Sequence[str]) -> tuple[str, ...]:
     """``families`` as a tuple of known names; ``ValueError`` naming the first unknown one."""
-    if isinstance(families, str):
+    if isinstance(families, str):  # "rooms,pillars", e.g. from the command line
         families = [f.strip() for f in families.split(",") if f.strip()]
+    if not isinstance(families, (list, tuple)):
+        raise ValueError(f"families={families!r}: must be a list of {', '.join(FAMILIES)}")
     out = tuple(families)
     if not out:
         raise ValueError("families=(): choose at least one of " + ", ".join(FAMILIES))
     for f in out:
-        if f not in GENERATORS:
+        if not isinstance(f, str) or f not in GENERATORS:
             raise ValueError(f"families: unknown family {f!r}; choices: {', '.join(FAMILIES)}")
     return out
 
