@@ -22,6 +22,7 @@ _REGISTRY: dict[str, tuple[Callable[..., Environment], Callable[[], Any], dict[s
     "RobotComplex-v0": (robot.RobotNav, robot.default_config, {"maze": "complex"}),
     "RobotRandom-v0": (robot.RobotNav, robot.default_config, {"maze": "random"}),
     "RobotMaze-v0": (robot.RobotNav, robot.default_config, {"maze": "file"}),
+    "RobotNav-v0": (robot.RobotNav, robot.default_config, robot.GENERALIST),
 }
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 import math
+from pathlib import Path
 
 import chex
 import jax
@@ -15,7 +16,10 @@ from hypothesis import strategies as st
 
 import jaxnav
 from jaxnav.envs.robot import geometry
-from jaxnav.envs.robot.env import LASER_SCALE, NUM_LASERS
+from jaxnav.envs.robot.env import GENERALIST, GENERALIST_SENSORS, LASER_SCALE, NUM_LASERS
+
+# the float64 face-by-face reference caster (tests/ is on sys.path under pytest)
+from test_robot_geometry import ref_ray, well_conditioned  # noqa: E402  isort: skip
 
 FORWARD, BACKWARD, LEFT, RIGHT = range(4)
 KEY = jax.random.key(0)
@@ -332,3 +336,163 @@ def test_mjx_backend_agrees_with_kinematic_in_free_space_and_collides():
     _, r, term, hit = rollout(mjx_env, mp, jnp.array([0.35, 5.0, math.pi]))
     first = int(np.argmax(np.asarray(hit)))
     assert first == 3 and bool(term[first]) and float(r[first]) == -5.0
+
+
+# ------------------------------------------------------- generalist: lidar, observation
+EXAMPLE_MAZES = Path(__file__).parent.parent / "examples" / "mazes"
+# the generalist's observation (GENERALIST_SENSORS) and wall slots, on a file maze
+SENSORS = {**GENERALIST_SENSORS, "num_wall_slots": GENERALIST["num_wall_slots"]}
+
+
+@functools.cache
+def family_env(num_lasers: int, laser_fov: float):
+    """A tiny families bank (4 mazes, one of each family) with the given lidar, jitted once."""
+    env, params = jaxnav.make(
+        "RobotNav-v0", num_layouts=4, num_lasers=num_lasers, laser_fov=laser_fov
+    )
+    return env, params, jax.jit(env.lasers)
+
+
+def test_default_lidar_and_frame_are_the_papers():
+    env, _ = jaxnav.make("RobotSimple-v0", backend="kinematic")
+    c = env.config
+    assert (c.num_lasers, c.laser_fov, c.laser_range, c.obs_absolute) == (
+        7,
+        180.0,
+        LASER_SCALE,
+        True,
+    )
+    np.testing.assert_array_equal(env.angles, geometry.laser_angles())  # bit for bit
+    assert env.frame_size == 7 + 4 + 1 + 2
+    assert env.config.maze_seed == 0 and env.config.num_goal_cells == 0
+
+
+@pytest.mark.parametrize("num", [1, 2, 3, 7, 32])
+def test_laser_angles_cover_the_field_of_view(num):
+    full = np.asarray(geometry.laser_angles(num, 2 * math.pi), np.float64)
+    assert len(full) == num and 0.0 in full  # one beam straight ahead
+    assert (full > -math.pi).all() and (full <= math.pi + 1e-6).all() and (np.diff(full) > 0).all()
+    if num > 1:  # evenly spaced all around: no duplicate back beam
+        gaps = np.diff(np.append(full, full[0] + 2 * math.pi))
+        np.testing.assert_allclose(gaps, 2 * math.pi / num, atol=1e-5)
+        half = np.asarray(geometry.laser_angles(num, math.radians(120.0)))
+        np.testing.assert_allclose(half[[0, -1]], np.radians([-60.0, 60.0]), atol=1e-6)
+
+
+@settings(max_examples=12, deadline=None)
+@given(
+    num=st.integers(1, 40),
+    fov=st.sampled_from([30.0, 90.0, 180.0, 270.0, 359.0, 360.0]),
+    layout=st.integers(0, 3),
+    cell=st.integers(0, 10_000),
+    heading=st.floats(-math.pi, math.pi),
+    offset=st.tuples(st.floats(-0.2, 0.2), st.floats(-0.2, 0.2)),
+)
+def test_lidar_matches_a_brute_force_cast_at_any_beam_count(
+    num, fov, layout, cell, heading, offset
+):
+    """The env's lasers against the face-by-face float64 caster of test_robot_geometry, on the
+    maze's own boxes, from a point in a free cell of a families maze."""
+    env, params, lasers = family_env(num, fov)
+    maze = env.config.load_mazes()[layout]
+    cells = maze.free_cells()
+    x, y = np.asarray(maze.cell_center(*cells[cell % len(cells)])) + np.asarray(offset)
+    pose = np.array([x, y, heading], np.float32)
+    got = np.asarray(lasers(jnp.asarray(pose), jnp.int32(layout), params))
+    walls = maze.walls(env.num_wall_slots)
+    c, h, a = (np.asarray(v) for v in (walls.center, walls.half_size, walls.active))
+    theta = np.float64(pose[2]) + np.asarray(env.angles, np.float64)
+    dirs = np.stack([np.cos(theta), np.sin(theta)], axis=1)
+    want = np.array([ref_ray(pose[:2], d, c, h, a, env.config.laser_range) for d in dirs])
+    ok = well_conditioned(pose[:2], dirs, c, h, a)  # grazing rays are checked elsewhere
+    assert ok.mean() > 0.5
+    np.testing.assert_allclose(got[ok], want[ok], atol=2e-4)
+    assert len(got) == num
+
+
+def test_obs_absolute_false_drops_positions_and_keeps_distance_and_bearing():
+    env, params = jaxnav.make("RobotSimple-v0", backend="kinematic", obs_absolute=False)
+    full, _ = jaxnav.make("RobotSimple-v0", backend="kinematic")
+    assert env.frame_size == full.frame_size - 4 == 7 + 1 + 2
+    assert env.observation_space(params).shape == (4 * env.frame_size,)
+    pose, goal = jnp.array([2.5, 1.5, 0.3]), jnp.array([8.5, 8.5])
+    obs, s = env.reset_to(KEY, params, pose, goal)
+    full_obs, _ = full.reset_to(KEY, params, pose, goal)
+    frame, full_frame = np.asarray(obs[: env.frame_size]), np.asarray(full_obs[: full.frame_size])
+    np.testing.assert_array_equal(frame[:7], full_frame[:7])  # lasers
+    np.testing.assert_array_equal(frame[7:], full_frame[11:])  # distance, bearing
+    to_goal = np.asarray(goal - pose[:2])
+    assert frame[7] == pytest.approx(np.linalg.norm(to_goal) / LASER_SCALE)
+    bearing = math.atan2(to_goal[1], to_goal[0]) - 0.3
+    np.testing.assert_allclose(frame[8:], [math.sin(bearing), math.cos(bearing)], atol=1e-6)
+    # the frame does not depend on where the maze is: the same scene shifted gives the same
+    _, s1, *_ = env.step_env(KEY, s, FORWARD, params)
+    assert env.get_obs(s1, params).shape == obs.shape
+
+
+def test_generalist_env_resets_to_goal_cells_and_rolls_out():
+    env, params = jaxnav.make("RobotNav-v0", num_layouts=8)
+    c = env.config
+    assert (c.maze, c.backend, c.num_lasers, c.laser_fov, c.obs_absolute) == (
+        "families",
+        "kinematic",
+        32,
+        360.0,
+        False,
+    )
+    assert env.observation_space(params).shape == (c.frames * (32 + 1 + 2),)
+    assert env.num_wall_slots <= c.num_wall_slots
+    bank = params.bank
+    assert bank.goal_distance.shape == (8, c.num_goal_cells, 20, 20)
+    obs, s = jax.vmap(env.reset, in_axes=(0, None))(jax.random.split(KEY, 64), params)
+    goals = np.asarray(bank.free_xy)[
+        np.asarray(s.layout)[:, None], np.asarray(bank.goal_index)[np.asarray(s.layout)]
+    ]
+    assert (np.abs(goals - np.asarray(s.goal)[:, None]).max(-1) < 1e-6).any(1).all()
+    d = jax.vmap(env.goal_distance, in_axes=(0, 0, 0, None))(s.pose, s.goal, s.layout, params)
+    assert (np.asarray(d) > 0).all()  # a known geodesic distance, start != goal
+    assert np.isfinite(np.asarray(obs)).all() and (np.abs(np.asarray(obs)) <= 1).all()
+    step = jax.jit(jax.vmap(env.step, in_axes=(0, 0, 0, None)))
+    for i in range(20):
+        keys = jax.random.split(jax.random.key(i), 64)
+        obs, s, r, term, trunc, info = step(keys, s, jnp.full((64,), i % 4), params)
+        assert np.isfinite(np.asarray(obs)).all() and (np.abs(np.asarray(obs)) <= 1).all()
+        assert float(np.max(info["penetration"])) == 0.0
+    # a goal that is no goal cell has no known geodesic distance: no progress reward
+    layout = int(s.layout[0])
+    goal_cells = {int(i) for i in np.asarray(bank.goal_index[layout])}
+    other = next(i for i in range(int(bank.num_free[layout])) if i not in goal_cells)
+    d = env.goal_distance(s.pose[0], bank.free_xy[layout, other], layout, params)
+    assert float(d) == -1.0
+
+
+@pytest.mark.parametrize("path", sorted(EXAMPLE_MAZES.glob("*.txt")), ids=lambda p: p.name)
+def test_file_mazes_with_the_generalists_sensors(path):
+    env, params = jaxnav.make("RobotMaze-v0", maze_file=str(path), backend="kinematic", **SENSORS)
+    nav, nav_params = jaxnav.make("RobotNav-v0", num_layouts=2)
+    # the same observation layout as the generalist's, whatever the arena
+    assert env.observation_space(params).shape == nav.observation_space(nav_params).shape
+    obs, s = env.reset(KEY, params)
+    obs, s, r, *_ = env.step(KEY, s, FORWARD, params)
+    assert np.isfinite(np.asarray(obs)).all() and (np.abs(np.asarray(obs)) <= 1).all()
+
+
+def test_maze_seed_and_new_fields_are_validated():
+    a, _ = jaxnav.make("RobotRandom-v0", backend="kinematic", num_layouts=4)
+    b, _ = jaxnav.make("RobotRandom-v0", backend="kinematic", num_layouts=4, maze_seed=0)
+    c, _ = jaxnav.make("RobotRandom-v0", backend="kinematic", num_layouts=4, maze_seed=7)
+    grids = [np.asarray(e.default_params.bank.grid) for e in (a, b, c)]
+    np.testing.assert_array_equal(grids[0], grids[1])
+    assert not np.array_equal(grids[0], grids[2])
+    for bad, match in [
+        ({"laser_fov": 0.0}, "laser_fov=0.0"),
+        ({"laser_fov": 361.0}, "laser_fov=361.0"),
+        ({"num_lasers": 0}, "num_lasers=0"),
+        ({"laser_range": -1.0}, "laser_range=-1.0"),
+        ({"obs_absolute": "no"}, "obs_absolute='no'"),
+        ({"maze_seed": -1}, "maze_seed=-1"),
+        ({"families": ("rooms", "caves")}, "unknown family 'caves'"),
+        ({"num_goal_cells": 0, "num_layouts": 4096}, "geodesic progress table would take"),
+    ]:
+        with pytest.raises(ValueError, match=match):
+            jaxnav.make("RobotNav-v0", **bad)

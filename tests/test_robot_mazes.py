@@ -3,12 +3,16 @@ built-in and random mazes, and batching."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from jaxnav.envs.robot import generators as G
 from jaxnav.envs.robot import mazes as M
+from jaxnav.envs.robot.env import GENERALIST
 
 
 def inside(walls: M.Walls, pts: np.ndarray, active_only: bool = False) -> np.ndarray:
@@ -338,3 +342,101 @@ def test_maze_constructor_validates():
         M.Maze(grid, cell_size=0)
     with pytest.raises(ValueError, match="non-empty 2-D"):
         M.Maze(np.zeros((0, 3), bool))
+
+
+# ------------------------------------------------------------------------ maze families
+EXAMPLES = sorted((Path(__file__).parent.parent / "examples" / "mazes").glob("*.txt"))
+
+
+def assert_connected(m: M.Maze) -> None:
+    """Every free cell is a placement cell and reachable from every other."""
+    free = m.free_cells()
+    assert len(free) >= 2
+    np.testing.assert_array_equal(m.placement_cells(), free)
+    assert (m.bfs_distances(tuple(free[0]))[~m.grid] >= 0).all()
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1), index=st.integers(0, 10_000), family=st.sampled_from(G.FAMILIES)
+)
+def test_family_mazes_are_connected_and_fit_the_generalists_slots(seed, index, family):
+    m = G.family_maze(seed, index, (family,))
+    assert m.grid.shape == (G.ROWS, G.COLS) and m.cell_size == G.CELL_SIZE
+    assert m.name.startswith(family)
+    assert_connected(m)  # any start reaches any goal
+    # drawn without a slot limit, yet within the generalist's slots (the tightest family,
+    # corridors, needs at most 39 boxes over the first 2,048 mazes of seed 0)
+    assert m.num_boxes <= 44
+    fitted = G.family_maze(seed, index, (family,), num_slots=GENERALIST["num_wall_slots"])
+    assert fitted.num_boxes <= GENERALIST["num_wall_slots"]
+
+
+def test_family_bank_is_deterministic_extends_and_held_out_seeds_are_disjoint():
+    small = G.family_maze_bank(8, seed=3)
+    big = G.family_maze_bank(40, seed=3)
+    for a, b in zip(small, big[:8], strict=True):
+        np.testing.assert_array_equal(a.grid, b.grid)  # maze i depends on (seed, i) only
+    assert [m.name.split("[")[0] for m in big[:4]] == list(G.FAMILIES)  # families in turn
+    train = {m.grid.tobytes() for m in G.family_maze_bank(200, seed=0)}
+    held_out = {m.grid.tobytes() for m in G.family_maze_bank(200, seed=1)}
+    assert len(train) == 200 and len(held_out) == 200  # no repeats within a seed either
+    assert not train & held_out
+    # 0.5 m (1-cell) and 1 m (2-cell) corridors both occur
+    corridors = G.family_maze_bank(40, seed=0, families=("corridors",))
+    widths = {_corridor_width(m) for m in corridors}
+    assert widths == {1, 2}
+    with pytest.raises(ValueError, match="unknown family 'caves'"):
+        G.family_maze_bank(2, families=("rooms", "caves"))
+    assert G.check_families("rooms, pillars") == ("rooms", "pillars")
+
+
+def _corridor_width(m: M.Maze) -> int:
+    """The narrowest run of free cells along a row (corridor mazes: the corridor width)."""
+    return min(b - a + 1 for row in ~m.grid for a, b in M._runs(row))
+
+
+def test_bank_with_k_goal_cells_matches_bfs():
+    mazes = G.family_maze_bank(6, seed=2)
+    k = 5
+    bank = M.stack_mazes(mazes, 44, num_goals=k)
+    rows, cols = G.ROWS, G.COLS
+    assert bank.goal_distance.shape == (6, k, rows, cols)
+    assert bank.goal_distance.dtype == np.int16
+    assert M.goal_table_bytes(6, rows, cols, k) == bank.goal_distance.nbytes
+    assert M.goal_table_bytes(6, rows, cols, None) == 2 * 6 * 400 * 400
+    again = M.stack_mazes(mazes[3:], 44, num_goals=k)  # goal cells depend on the maze only
+    np.testing.assert_array_equal(again.goal_index, bank.goal_index[3:])
+    for b, m in enumerate(mazes):
+        idx = np.asarray(bank.goal_index[b])
+        assert len(set(idx.tolist())) == k and (idx < int(bank.num_free[b])).all()
+        source = np.asarray(bank.goal_source[b])
+        assert (source >= 0).sum() == k
+        for j, i in enumerate(idx):
+            r, c = (int(v) for v in bank.free_cells[b, i])
+            np.testing.assert_array_equal(bank.goal_distance[b, j], m.bfs_distances((r, c)))
+            assert source[r * cols + c] == j
+    full = M.stack_mazes(mazes[:1], 44)
+    assert full.goal_index is None and full.goal_source is None
+    assert full.goal_distance.shape == (1, rows * cols, rows, cols)
+
+
+@pytest.mark.parametrize("path", EXAMPLES, ids=lambda p: p.name)
+def test_example_maze_files_load_are_connected_and_fit(path):
+    m = M.load_maze(path, num_slots=GENERALIST["num_wall_slots"])
+    assert_connected(m)
+    assert 0.5 <= m.cell_size <= 1.0
+    assert all(8.0 <= side <= 12.0 for side in m.size_m)
+    if m.start is not None and m.goal is not None:
+        assert m.connected(m.start, m.goal)
+
+
+def test_there_are_example_mazes_of_each_kind():
+    names = {p.stem for p in EXAMPLES}
+    assert {
+        "rooms_doors",
+        "warehouse",
+        "corridors_1cell",
+        "corridors_2cell",
+        "pillar_hall",
+    } <= names

@@ -25,9 +25,27 @@ D and the bearing are on by default: with them the DQN reaches 0.96 success on R
 without them it learns far slower (``benchmarks/results/robot_sweep3.md``). ``PAPER_SETUP``
 holds the overrides for the paper's literal speed, reward and observation.
 
-Lasers: 7 analytic ray casts over the front half (-90, -60, ..., +90 degrees from the heading;
-``geometry.laser_angles``) against the maze's wall boxes, from the robot's centre, clipped to
-10 sqrt 2 m.
+With ``obs_absolute=False`` the frame leaves out goal (x, y) and robot (x, y), arena
+coordinates a real robot has none of; D (clipped at 1) and the bearing stay, and the frame no
+longer depends on the arena's size.
+
+Lasers: by default 7 analytic ray casts over the front half (-90, -60, ..., +90 degrees from the
+heading; ``geometry.laser_angles``) against the maze's wall boxes, from the robot's centre,
+clipped to 10 sqrt 2 m. ``num_lasers``, ``laser_fov`` (degrees; 360 spaces the beams evenly all
+around, one straight ahead) and ``laser_range`` (metres, also the normalizer) change them.
+
+Generalist (``RobotNav-v0``, ``GENERALIST``): ``maze="families"``, a bank of 2,048 mazes from
+``generators.py`` (rooms with doors, depth-first corridors 0.5 or 1 m wide, random wall
+segments, pillar halls, some on a smaller sub-arena; 20 x 20 cells of 0.5 m, seed
+``maze_seed``), on the ``kinematic`` backend, with 32 lasers all around (360 degrees),
+``obs_absolute=False`` (frame: 32 lasers, D, bearing; 4 frames, 140 inputs), 40 wall slots
+(the families need at most 39 boxes; mazes that need more are redrawn) and ``max_steps`` 400
+(the longest geodesic start-goal path of 256 resets was 34.5 m, ~140 forward steps). The
+geodesic table keeps ``num_goal_cells`` = 32 goal cells per maze: int16[2048, 32, 20, 20] is
+50 MiB (the full all-pairs table would be 1.25 GiB and 819,200 BFS runs to build); resets draw
+goals from those cells only, so each maze still offers 32 goals x every start. Build time on
+2 CPU cores: about 9 s. ``GENERALIST_SENSORS`` gives the observation's fields to run its policy
+on a maze file (``RobotMaze-v0``, ``maze_file=...``, with ``num_wall_slots`` the maze needs).
 
 Backends: ``mjx`` (the default) steps the robot with MuJoCo MJX (``mjx_backend.py``: a sphere
 on slide/slide/hinge joints with velocity actuators, per-env walls in the model's geom fields),
@@ -52,15 +70,18 @@ from flax import struct
 
 from jaxnav import spaces
 from jaxnav.environment import Environment, EnvParams, EnvState
-from jaxnav.envs.robot import geometry, mazes
+from jaxnav.envs.robot import generators, geometry, mazes
 
 ACTION_NAMES = ("forward", "backward", "turn_left", "turn_right")
-MAZES = ("simple", "complex", "random", "file")
+MAZES = ("simple", "complex", "random", "file", "families")
 BACKENDS = ("kinematic", "mjx")
 LASER_SCALE = 10.0 * math.sqrt(2.0)  # Table I: sensors normalized by their maximum variation
 MAX_BANK_CELLS = 4_000_000  # random mazes are generated in Python: about 25 s at this size
 MAX_STEP_CELLS = 100  # a control step may cross at most this many cells (bounds the sub-steps)
-NUM_LASERS = 7
+NUM_LASERS = 7  # the paper's; RobotConfig.num_lasers' default
+# the geodesic table's bytes (int16[B, goals, rows, cols]); beyond this a bank is refused, with
+# a hint to keep fewer goal cells per maze (num_goal_cells)
+MAX_GOAL_TABLE_BYTES = 2**30  # 1 GiB: every random bank of 10 x 10 mazes allowed today fits
 _UNREACHABLE = -1e15  # where inactive wall slots go for the collision test (squares stay finite)
 
 
@@ -70,8 +91,13 @@ class RobotConfig:
 
     maze: str = "simple"
     maze_file: str | None = None
-    num_layouts: int = 256  # bank size when maze == "random"
+    num_layouts: int = 256  # bank size when maze == "random" or "families"
     random_size: int = 10  # cells per side of random mazes (1 m cells)
+    maze_seed: int = 0  # the random and families banks' seed (maze i depends on (seed, i))
+    families: tuple[str, ...] = generators.FAMILIES  # which families, in turn, for "families"
+    # goal cells per maze kept in the geodesic progress table; 0 = every cell (the paper envs).
+    # The full table is 2 (rows * cols)^2 bytes a maze: 320 KB at the families' 20 x 20
+    num_goal_cells: int = 0
     num_wall_slots: int = 24  # the most a maze may use; an env uses what its mazes need
     backend: str = "mjx"
     radius: float = 0.15
@@ -83,6 +109,10 @@ class RobotConfig:
     goal_radius: float = 0.5
     max_steps: int = 250
     frames: int = 4
+    num_lasers: int = NUM_LASERS
+    laser_fov: float = 180.0  # degrees; 360 = all around (no duplicate back beam)
+    laser_range: float = LASER_SCALE  # metres; lasers and the goal distance are divided by it
+    obs_absolute: bool = True  # goal and robot (x, y) / arena in the frame (the paper's)
     obs_proximity: bool = True
     obs_heading: bool = False
     obs_goal_bearing: bool = True  # (sin, cos) of the goal's direction relative to the heading
@@ -106,14 +136,24 @@ class RobotConfig:
             ("mjx_substeps", 1, 1000),
             ("max_steps", 1, 1_000_000),
             ("frames", 1, 64),
+            ("num_lasers", 1, 1024),
+            ("maze_seed", 0, 2**32 - 1),
+            ("num_goal_cells", 0, 1_000_000),
         ):
             v = getattr(self, name)
             if not isinstance(v, int) or isinstance(v, bool) or not lo <= v <= hi:
                 raise ValueError(f"{name}={v!r}: must be an integer in [{lo}, {hi}]")
-        for name in ("radius", "speed", "turn_speed", "dt", "goal_radius"):
+        for name in ("radius", "speed", "turn_speed", "dt", "goal_radius", "laser_range"):
             v = getattr(self, name)
             if not _positive(v):
                 raise ValueError(f"{name}={v!r}: must be a positive number")
+        if not _positive(self.laser_fov) or self.laser_fov > 360:
+            raise ValueError(
+                f"laser_fov={self.laser_fov!r}: must be a number of degrees in (0, 360]"
+            )
+        if not isinstance(self.obs_absolute, (bool, np.bool_)):
+            raise ValueError(f"obs_absolute={self.obs_absolute!r}: must be True or False")
+        generators.check_families(self.families)
         for name in (
             "goal_reward",
             "collision_reward",
@@ -145,6 +185,17 @@ class RobotConfig:
                 f"maze cells to generate ({self.num_layouts * self.random_size**2:,}; at most "
                 f"{MAX_BANK_CELLS:,})"
             )
+        if self.maze in ("random", "families"):
+            side = self.random_size if self.maze == "random" else generators.ROWS
+            goals = self.num_goal_cells or None
+            table = mazes.goal_table_bytes(self.num_layouts, side, side, goals)
+            if table > MAX_GOAL_TABLE_BYTES:
+                raise ValueError(
+                    f"num_layouts={self.num_layouts}, num_goal_cells={self.num_goal_cells}: the "
+                    f"geodesic progress table would take {table / 2**20:,.0f} MiB (at most "
+                    f"{MAX_GOAL_TABLE_BYTES / 2**20:,.0f}); keep fewer goal cells per maze, e.g. "
+                    "num_goal_cells=32, or fewer mazes"
+                )
         for maze in self.load_mazes(validate_only=True):
             mazes.check_slots(maze, self.num_wall_slots)
             width, height = maze.size_m
@@ -167,12 +218,25 @@ class RobotConfig:
     def load_mazes(self, validate_only: bool = False) -> list[mazes.Maze]:
         if self.maze == "file":
             return [mazes.load_maze(self.maze_file)]
+        num = 1 if validate_only else self.num_layouts
         if self.maze == "random":
-            num = 1 if validate_only else self.num_layouts
             return mazes.random_maze_bank(
-                num, self.random_size, self.random_size, num_slots=self.num_wall_slots
+                num,
+                self.random_size,
+                self.random_size,
+                seed=self.maze_seed,
+                num_slots=self.num_wall_slots,
+            )
+        if self.maze == "families":
+            return generators.family_maze_bank(
+                num, self.maze_seed, self.families, num_slots=self.num_wall_slots
             )
         return [mazes.builtin_maze(self.maze)]
+
+    @property
+    def laser_angles(self) -> jax.Array:
+        """float32[num_lasers] beam directions relative to the heading (radians)."""
+        return geometry.laser_angles(self.num_lasers, math.radians(self.laser_fov))
 
 
 def default_config() -> RobotConfig:
@@ -188,6 +252,26 @@ PAPER_SETUP: dict[str, Any] = {
     "obs_proximity": False,
     "obs_goal_bearing": False,
     "progress_reward": 0.0,
+}
+
+# RobotNav-v0, the generalist: trained on many maze families, it must not rely on anything a
+# real robot lacks or on one arena. See the module docstring's "Generalist" paragraph.
+GENERALIST: dict[str, Any] = {
+    "maze": "families",
+    "backend": "kinematic",
+    "num_layouts": 2048,
+    "num_goal_cells": 32,
+    "num_wall_slots": 40,
+    "num_lasers": 32,
+    "laser_fov": 360.0,
+    "obs_absolute": False,
+    "max_steps": 400,
+}
+# The fields that shape RobotNav-v0's observation: pass them (and a num_wall_slots the maze
+# needs) to run its policy elsewhere, e.g.
+# ``jaxnav.make("RobotMaze-v0", maze_file=path, num_wall_slots=40, **GENERALIST_SENSORS)``
+GENERALIST_SENSORS: dict[str, Any] = {
+    k: GENERALIST[k] for k in ("num_lasers", "laser_fov", "obs_absolute")
 }
 
 def _positive(v: Any) -> bool:
@@ -232,10 +316,10 @@ class RobotNav(Environment[RobotState, RobotParams]):
         # slot, parked or not, costs a ray test per laser and a collision test per sub-step
         # (or an MJX geom), e.g. the simple maze needs 6 of the 24
         self.num_wall_slots = max(m.num_boxes for m in maze_list)
-        self._bank = mazes.stack_mazes(maze_list, self.num_wall_slots)
-        self.arena = np.asarray(self._bank.size_m, np.float32)
-        self.angles = geometry.laser_angles(NUM_LASERS)
         c = self.config
+        self._bank = mazes.stack_mazes(maze_list, self.num_wall_slots, c.num_goal_cells or None)
+        self.arena = np.asarray(self._bank.size_m, np.float32)
+        self.angles = c.laser_angles
         # enough sub-steps that one moves less than the thinnest wall's half size
         thinnest = self._bank.walls.min_half_size()
         self.substeps = max(c.substeps, geometry.min_substeps(c.speed, c.dt, thinnest))
@@ -272,7 +356,10 @@ class RobotNav(Environment[RobotState, RobotParams]):
     @property
     def frame_size(self) -> int:
         c = self.config
-        return NUM_LASERS + 4 + c.obs_proximity + 2 * c.obs_heading + 2 * c.obs_goal_bearing
+        absolute = 4 * c.obs_absolute  # goal (x, y), robot (x, y)
+        return (
+            c.num_lasers + absolute + c.obs_proximity + 2 * c.obs_heading + 2 * c.obs_goal_bearing
+        )
 
     def observation_space(self, params: RobotParams | None = None) -> spaces.Box:
         return spaces.Box(-1.0, 1.0, (self.config.frames * self.frame_size,), jnp.float32)
@@ -292,9 +379,15 @@ class RobotNav(Environment[RobotState, RobotParams]):
         layout = jnp.asarray(layout, jnp.int32)
         _, k_start, k_goal, k_heading = jax.random.split(key, 4)
         n = bank.num_free[layout]
-        start_idx = jax.random.randint(k_start, (), 0, n)
-        goal_idx = jax.random.randint(k_goal, (), 0, n - 1)
-        goal_idx = goal_idx + (goal_idx >= start_idx)  # a different cell than the start
+        if bank.goal_index is None:  # every cell can be the goal (the paper envs)
+            start_idx = jax.random.randint(k_start, (), 0, n)
+            goal_idx = jax.random.randint(k_goal, (), 0, n - 1)
+            goal_idx = goal_idx + (goal_idx >= start_idx)  # a different cell than the start
+        else:  # one of the maze's goal cells, then any other start
+            k = jax.random.randint(k_goal, (), 0, bank.goal_index.shape[1])
+            goal_idx = bank.goal_index[layout, k]
+            start_idx = jax.random.randint(k_start, (), 0, n - 1)
+            start_idx = start_idx + (start_idx >= goal_idx)
         heading = jax.random.uniform(k_heading, (), minval=-jnp.pi, maxval=jnp.pi)
         start = bank.free_xy[layout, start_idx]
         goal = bank.free_xy[layout, goal_idx]
@@ -408,7 +501,8 @@ class RobotNav(Environment[RobotState, RobotParams]):
         self, pose: jax.Array, goal: jax.Array, layout: jax.Array, params: RobotParams
     ) -> jax.Array:
         """Geodesic distance in metres from the robot's cell to the goal's cell through free
-        cells (4-neighbour steps x cell size); -1 where none is known."""
+        cells (4-neighbour steps x cell size); -1 where none is known (unreachable, or, in a
+        bank with K goal cells per maze, a goal that is none of them)."""
         bank = params.bank
         rows, cols = bank.grid.shape[1:]
 
@@ -419,7 +513,13 @@ class RobotNav(Environment[RobotState, RobotParams]):
 
         goal_row, goal_col = cell(goal)
         row, col = cell(pose[:2])
-        steps = bank.goal_distance[layout, goal_row * cols + goal_col, row, col]
+        source = goal_row * cols + goal_col
+        if bank.goal_source is None:
+            steps = bank.goal_distance[layout, source, row, col]
+        else:
+            source = bank.goal_source[layout, source]
+            steps = bank.goal_distance[layout, jnp.maximum(source, 0), row, col]
+            steps = jnp.where(source >= 0, steps, -1)
         return jnp.where(steps >= 0, steps * bank.cell_size, -1.0)
 
     def lasers(self, pose: jax.Array, layout: jax.Array, params: RobotParams) -> jax.Array:
@@ -427,20 +527,22 @@ class RobotNav(Environment[RobotState, RobotParams]):
         # corners of the whole bank's boxes: the same every step, so XLA computes them once
         w = params.bank.walls
         lo, hi = geometry.box_bounds(w.center, w.half_size, w.active)
-        ranges = geometry.lasers(pose, lo[layout], hi[layout], self.angles, LASER_SCALE)
+        ranges = geometry.lasers(pose, lo[layout], hi[layout], self.angles, self.config.laser_range)
         # materialized: fused into the frame's concatenation, the casts ran 1-8% slower on an
         # H200 (65,536 to 1,048,576 envs)
         return jax.lax.optimization_barrier(ranges)
 
     def _frame(self, pose, goal, layout, params) -> jax.Array:
-        arena = jnp.asarray(self.arena)
-        parts = [
-            self.lasers(pose, layout, params) / LASER_SCALE,
-            goal / arena,
-            pose[:2] / arena,
-        ]
-        if self.config.obs_proximity:
-            parts.append(jnp.linalg.norm(goal - pose[:2])[None] / LASER_SCALE)
+        c = self.config
+        parts = [self.lasers(pose, layout, params) / c.laser_range]
+        if c.obs_absolute:
+            arena = jnp.asarray(self.arena)
+            parts += [goal / arena, pose[:2] / arena]
+        if c.obs_proximity:
+            # clipped at 1 to stay in the observation space: a no-op within a 10 m square
+            # arena at the default range (its diagonal), "far" beyond the range otherwise
+            distance = jnp.linalg.norm(goal - pose[:2])[None] / c.laser_range
+            parts.append(jnp.minimum(distance, 1.0))
         if self.config.obs_heading:
             parts.append(jnp.stack([jnp.sin(pose[2]), jnp.cos(pose[2])]))
         if self.config.obs_goal_bearing:

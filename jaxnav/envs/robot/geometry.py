@@ -10,8 +10,9 @@ float32[W, 2]``, ``half_size: float32[W, 2]`` (axis-aligned boxes), ``active: bo
 Inactive slots (padding to a fixed ``W``) are ignored wherever they lie. Ray casts take the
 boxes as corners ``lo, hi`` (``box_bounds``), computed once per maze bank.
 
-- ``laser_angles`` / ``lasers`` / ``ray_box_distances``: the paper's 7 range sensors over the
-  front half, by the analytic slab method (exact, finite for axis-aligned rays).
+- ``laser_angles`` / ``lasers`` / ``ray_box_distances``: range sensors (the paper's 7 over the
+  front half, or any count over any field of view up to 360 degrees), by the analytic slab
+  method (exact, finite for axis-aligned rays).
 - ``circle_box_penetration`` / ``collides``: how deep the robot's disc is inside the walls.
 - ``unicycle_step``: exact integration of ``(v, omega)`` held constant over ``dt``.
 - ``move_with_walls``: the kinematic backend's step, which stops at the last collision-free
@@ -36,16 +37,25 @@ _FAR = 1e30
 
 
 def laser_angles(num: int = 7, fov: float = math.pi) -> jax.Array:
-    """Laser directions relative to the heading, evenly from ``-fov / 2`` to ``+fov / 2``.
+    """Laser directions relative to the heading, ascending (from the robot's right).
 
-    The default is the paper's 7 lasers over the front half: -90, -60, -30, 0, 30, 60 and 90
-    degrees (index 0 is the robot's right, index 3 straight ahead, index 6 its left).
-    ``num=1`` gives the single forward ray.
+    ``fov < 2 pi``: evenly from ``-fov / 2`` to ``+fov / 2``, both ends included. The default
+    is the paper's 7 lasers over the front half: -90, -60, -30, 0, 30, 60 and 90 degrees
+    (index 0 is the robot's right, index 3 straight ahead, index 6 its left). ``num=1`` gives
+    the single forward ray.
+
+    ``fov >= 2 pi`` (a full circle): ``num`` beams ``2 pi / num`` apart, one straight ahead,
+    in ``(-pi, pi]``; no beam repeats another (as -180 and +180 degrees would).
     """
     if num < 1:
         raise ValueError(f"num={num!r}: must be at least 1")
+    if not fov > 0:
+        raise ValueError(f"fov={fov!r}: must be positive")
     if num == 1:
         return jnp.zeros((1,), jnp.float32)
+    if fov >= 2 * math.pi:
+        k = np.arange(num) - (num - 1) // 2  # index (num - 1) // 2 is the forward beam
+        return jnp.asarray(k * (2 * math.pi / num), jnp.float32)
     return jnp.asarray(np.linspace(-fov / 2, fov / 2, num), jnp.float32)  # float64, then cast
 
 

@@ -113,10 +113,18 @@ class MazeBank:
     has_start: jax.Array  # bool[B]
     goal_xy: jax.Array  # float32[B, 2] the G cell's centre (free_xy[:, 0] when none)
     has_goal: jax.Array  # bool[B]
-    # int16[B, rows * cols, rows, cols]: 4-neighbour steps from each cell (the goal's, flattened)
-    # to every cell, -1 at walls and unreachable; precomputed so a reset costs no BFS
+    # int16[B, G, rows, cols]: 4-neighbour steps from each goal source to every cell, -1 at
+    # walls and unreachable; precomputed so a reset costs no BFS. With ``goal_index`` None
+    # (the default) G = rows * cols and source g is the cell (g // cols, g % cols): every cell
+    # can be a goal. That is 2 (rows * cols)^2 bytes a maze, 320 KB at 20 x 20, so large banks
+    # of fine grids keep only K goal cells per maze (``stack_mazes(..., num_goals=K)``)
     goal_distance: jax.Array
     cell_size: float = struct.field(pytree_node=False, default=1.0)
+    # With K goal cells: int32[B, K] indices into free_xy of the goal cells (source k of
+    # goal_distance), and int32[B, rows * cols] the source of each flattened cell, -1 where the
+    # cell is no goal cell; None for the full table
+    goal_index: jax.Array | None = None
+    goal_source: jax.Array | None = None
 
     @property
     def num_mazes(self) -> int:
@@ -687,10 +695,17 @@ def stack_walls(mazes: Sequence[Maze], num_slots: int) -> Walls:
     )
 
 
-def stack_mazes(mazes: Sequence[Maze], num_slots: int) -> MazeBank:
+def stack_mazes(mazes: Sequence[Maze], num_slots: int, num_goals: int | None = None) -> MazeBank:
     """A ``MazeBank`` of mazes that share rows, cols and cell size: walls, placement-cell
     centres padded to the bank's largest count (with the maze's first cell, so any index
-    below the padded size is a valid cell) and the S/G cells."""
+    below the padded size is a valid cell) and the S/G cells.
+
+    ``num_goals`` None: the geodesic table covers every cell as a goal ([B, rows * cols, rows,
+    cols]). ``num_goals=K``: only K goal cells per maze ([B, K, rows, cols], ``goal_index``),
+    drawn without replacement from its placement cells by a generator seeded with the grid
+    itself (the same maze gets the same goal cells in any bank; a maze with fewer than K
+    placement cells repeats them). Resets then draw goals from these cells only.
+    """
     if len(mazes) == 0:
         raise ValueError("stack_mazes: no mazes")
     m0 = mazes[0]
@@ -715,6 +730,23 @@ def stack_mazes(mazes: Sequence[Maze], num_slots: int) -> MazeBank:
 
     start_xy, has_start = mark("start")
     goal_xy, has_goal = mark("goal")
+    grids = np.stack([m.grid for m in mazes])
+    goal_index = goal_source = None
+    if num_goals is None:
+        goal_distance = _all_pairs_distances(grids)
+    else:
+        _check_int("num_goals", num_goals, 1)
+        goal_index = np.stack(
+            [_goal_choice(m.grid, len(p), num_goals) for m, p in zip(mazes, placement, strict=True)]
+        )
+        sources = np.take_along_axis(cells, goal_index[..., None], axis=1)  # [B, K, 2]
+        goal_distance = bank_distances(jnp.asarray(grids), jnp.asarray(sources))
+        rows, cols = m0.grid.shape
+        flat = sources[..., 0] * cols + sources[..., 1]
+        goal_source = np.full((len(mazes), rows * cols), -1, np.int32)
+        for b in range(len(mazes)):  # reversed: a repeated cell maps to its first source
+            goal_source[b, flat[b, ::-1]] = np.arange(num_goals - 1, -1, -1, dtype=np.int32)
+        goal_index, goal_source = jnp.asarray(goal_index, jnp.int32), jnp.asarray(goal_source)
     return MazeBank(
         walls=stack_walls(mazes, num_slots),
         free_xy=jnp.asarray(free_xy, jnp.float32),
@@ -725,9 +757,25 @@ def stack_mazes(mazes: Sequence[Maze], num_slots: int) -> MazeBank:
         has_start=jnp.asarray(has_start),
         goal_xy=jnp.asarray(goal_xy),
         has_goal=jnp.asarray(has_goal),
-        goal_distance=_all_pairs_distances(np.stack([m.grid for m in mazes])),
+        goal_distance=goal_distance,
         cell_size=m0.cell_size,
+        goal_index=goal_index,
+        goal_source=goal_source,
     )
+
+
+def _goal_choice(grid: np.ndarray, num_placement: int, num_goals: int) -> np.ndarray:
+    """int32[num_goals] placement indices of a maze's goal cells: a random subset, seeded by
+    the grid's own bits so it depends on the maze only, repeated when there are too few."""
+    rng = np.random.default_rng([*np.packbits(grid).tolist(), *grid.shape])
+    chosen = np.sort(rng.permutation(num_placement)[:num_goals])
+    return np.resize(chosen, num_goals).astype(np.int32)
+
+
+def goal_table_bytes(num_mazes: int, rows: int, cols: int, num_goals: int | None) -> int:
+    """Bytes of a bank's geodesic table (int16[B, G, rows, cols])."""
+    sources = rows * cols if num_goals is None else num_goals
+    return 2 * num_mazes * sources * rows * cols
 
 
 def _all_pairs_distances(grids: np.ndarray) -> jax.Array:
