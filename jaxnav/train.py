@@ -129,8 +129,9 @@ class Trainer:
         return self.obs_size, self.network.onehot_sizes
 
     def _check_memory(self) -> None:
-        """``ValueError`` for sizes whose replay buffers and networks (params, target, two
-        Adam moments) cannot fit in this machine's memory: refused before allocating."""
+        """``ValueError`` for sizes whose replay buffers (PQN: rollouts) and networks (params,
+        target, two Adam moments) cannot fit in this machine's memory: refused before
+        allocating."""
         c = self.config
         first = dqn.input_size(*self.network_input)
         sizes = (first, *c.hidden_sizes, self.env.num_actions + 1)
@@ -141,8 +142,12 @@ class Trainer:
         need = c.num_seeds * (replay + 4 * 4 * weights)
         have = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
         if need > have:
+            # what sizes the transitions kept: PQN's rollout, DQN's replay buffer
+            kept = f"buffer_size={c.buffer_size}"
+            if c.algo == "pqn":
+                kept = f"rollout_length={c.rollout_length}"
             raise ValueError(
-                f"buffer_size={c.buffer_size}, hidden_sizes={','.join(map(str, c.hidden_sizes))}"
+                f"{kept}, hidden_sizes={','.join(map(str, c.hidden_sizes))}"
                 f", num_envs={c.num_envs}, num_seeds={c.num_seeds}: training needs about "
                 f"{need / 2**30:.1f} GiB, more than this machine's {have / 2**30:.1f} GiB"
             )

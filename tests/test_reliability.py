@@ -32,6 +32,14 @@ TINY = [
 ]  # fmt: skip
 
 
+# the algorithms' own flags on top of TINY: PQN steps each of the 4 envs twice per iteration
+# and takes 2 minibatches of 4 transitions (2 epochs, its preset) from every rollout
+ALGO_FLAGS = {
+    "dqn": [],
+    "pqn": ["--algo", "pqn", "--rollout-length", "2", "--num-minibatches", "2"],
+}
+
+
 @pytest.fixture(scope="module")
 def cache_env(tmp_path_factory) -> dict[str, str]:
     """Subprocess environment sharing one compilation cache, so only the first run compiles."""
@@ -63,20 +71,25 @@ def final_params(run: Path):
     return jax.device_get(run_dir.load_trained_params(run, trainer))
 
 
+@pytest.fixture(scope="module", params=sorted(ALGO_FLAGS))
+def algo(request) -> str:
+    return request.param
+
+
 @pytest.fixture(scope="module")
-def uninterrupted(tmp_path_factory, cache_env) -> Path:
+def uninterrupted(tmp_path_factory, cache_env, algo) -> Path:
     out = tmp_path_factory.mktemp("ref") / "run"
-    proc = train_process([*TINY, "--out", str(out)], cache_env)
+    proc = train_process([*TINY, *ALGO_FLAGS[algo], "--out", str(out)], cache_env)
     assert proc.wait() == 0, proc.communicate()
     return out
 
 
 @pytest.mark.slow
 def test_kill_9_at_an_arbitrary_moment_then_resume_is_bitwise_identical(
-    uninterrupted, cache_env, tmp_path
+    algo, uninterrupted, cache_env, tmp_path
 ):
     out = tmp_path / "run"
-    proc = train_process([*TINY, "--out", str(out)], cache_env)
+    proc = train_process([*TINY, *ALGO_FLAGS[algo], "--out", str(out)], cache_env)
     wait_for_checkpoint(out, proc)
     delay = random.uniform(0.0, 0.6)  # anywhere in training: mid-interval, mid-save, ...
     time.sleep(delay)
@@ -99,6 +112,7 @@ def test_kill_9_at_an_arbitrary_moment_then_resume_is_bitwise_identical(
     assert not run_dir.partial_dir(out).exists()
     # what reproducing it needs is saved with it
     doc = json.loads((out / "config.json").read_text())
+    assert doc["config"]["algo"] == algo
     assert doc["environment"]["jax_backend"] == jax.default_backend()
     assert doc["environment"]["packages"]["jax"] == jax.__version__
     assert doc["checkpointing"] == {"checkpoint_every": 64, "keep_checkpoints": 2}

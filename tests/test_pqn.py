@@ -1,0 +1,274 @@
+"""PQN (``--algo pqn``): lambda-return targets against a plain reference, learning the grid,
+seeds, the bfloat16 option, no replay memory, and its configurations refused with a reason.
+(Kill -9 then ``--resume`` is in test_reliability.py, parametrized over the algorithms.)"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from conftest import TINY_TRAIN
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from jaxnav.agents import dqn, pqn
+from jaxnav.cli import train_main
+from jaxnav.config import TrainConfig
+from jaxnav.evaluate import evaluate, random_policy
+from jaxnav.train import Trainer
+
+# TINY_TRAIN as PQN: 4 envs x 2 steps per rollout, 2 minibatches of 4 transitions, 2 epochs
+TINY_PQN = dataclasses.replace(
+    TINY_TRAIN,
+    algo="pqn",
+    layer_norm=True,
+    rollout_length=2,
+    num_epochs=2,
+    num_minibatches=2,
+)
+
+
+# ------------------------------------------------------------------ lambda-returns
+def reference_lambda_returns(reward, terminated, done, next_value, gamma, lam):
+    """The recursion of ``pqn.lambda_returns``'s docstring, one env and one step at a time."""
+    reward, next_value = np.asarray(reward, np.float64), np.asarray(next_value, np.float64)
+    steps, envs = reward.shape
+    g = np.zeros((steps, envs))
+    for n in range(envs):
+        for t in reversed(range(steps)):
+            if t == steps - 1 or done[t, n]:
+                boot = next_value[t, n]
+            else:
+                boot = (1 - lam) * next_value[t, n] + lam * g[t + 1, n]
+            g[t, n] = reward[t, n] + gamma * (1 - terminated[t, n]) * boot
+    return g
+
+
+lambda_returns = jax.jit(pqn.lambda_returns)
+
+
+def returns_of(reward, terminated, done, next_value, gamma, lam) -> np.ndarray:
+    return np.asarray(
+        lambda_returns(
+            jnp.asarray(reward, jnp.float32),
+            jnp.asarray(terminated, bool),
+            jnp.asarray(done, bool),
+            jnp.asarray(next_value, jnp.float32),
+            jnp.float32(gamma),
+            jnp.float32(lam),
+        )
+    )
+
+
+# one rollout of 4 steps in 4 envs, laid out [time, env]:
+# env 0 runs on, env 1 is truncated (time limit) after step 1, env 2 terminates (goal) after
+# step 1, env 3 terminates on the rollout's last step
+REWARD = np.array(
+    [[0.0, 0.1, -0.2, 0.0], [0.5, 1.0, 1.0, 0.3], [0.0, -0.5, 0.2, 0.0], [1.0, 0.0, 0.0, 1.0]]
+)
+NEXT_VALUE = np.array(
+    [[2.0, 0.4, 0.3, -1.0], [3.0, 5.0, 7.0, 0.5], [-1.0, 0.6, 0.9, 2.0], [4.0, 0.8, 0.1, 9.0]]
+)
+DONE = np.zeros((4, 4), bool)
+TERMINATED = np.zeros((4, 4), bool)
+DONE[1, 1] = DONE[1, 2] = DONE[3, 3] = True
+TERMINATED[1, 2] = TERMINATED[3, 3] = True
+GAMMA = 0.9
+
+
+@pytest.mark.parametrize("lam", [0.0, 0.3, 0.65, 1.0])
+def test_lambda_returns_match_the_reference_recursion(lam):
+    got = returns_of(REWARD, TERMINATED, DONE, NEXT_VALUE, GAMMA, lam)
+    want = reference_lambda_returns(REWARD, TERMINATED, DONE, NEXT_VALUE, GAMMA, lam)
+    np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-6)
+
+
+def test_lambda_returns_by_hand_at_episode_ends():
+    lam, g, r, v = 0.5, GAMMA, REWARD, NEXT_VALUE
+    got = returns_of(REWARD, TERMINATED, DONE, NEXT_VALUE, g, lam)
+    # truncated after step 1: bootstraps from the final observation's value, not from step 2
+    np.testing.assert_allclose(got[1, 1], r[1, 1] + g * v[1, 1], rtol=1e-6)
+    np.testing.assert_allclose(
+        got[0, 1], r[0, 1] + g * ((1 - lam) * v[0, 1] + lam * got[1, 1]), rtol=1e-6
+    )
+    # terminated after step 1: no bootstrap at all
+    np.testing.assert_allclose(got[1, 2], r[1, 2], rtol=1e-6)
+    np.testing.assert_allclose(
+        got[0, 2], r[0, 2] + g * ((1 - lam) * v[0, 2] + lam * r[1, 2]), rtol=1e-6
+    )
+    # the next episode starts afresh: step 2 sees only its own future
+    np.testing.assert_allclose(got[3, 2], r[3, 2] + g * v[3, 2], rtol=1e-6)
+    # terminated on the rollout's last step
+    np.testing.assert_allclose(got[3, 3], r[3, 3], rtol=1e-6)
+    # the rollout's last step of a running episode bootstraps fully
+    np.testing.assert_allclose(got[3, 0], r[3, 0] + g * v[3, 0], rtol=1e-6)
+
+
+def test_lambda_0_is_one_step_targets():
+    got = returns_of(REWARD, TERMINATED, DONE, NEXT_VALUE, GAMMA, 0.0)
+    np.testing.assert_allclose(got, REWARD + GAMMA * (1 - TERMINATED) * NEXT_VALUE, rtol=1e-6)
+
+
+def test_lambda_1_is_monte_carlo_within_the_rollout_then_bootstrap():
+    got = returns_of(REWARD, TERMINATED, DONE, NEXT_VALUE, GAMMA, 1.0)
+    r, v, g = REWARD, NEXT_VALUE, GAMMA
+    # env 0 never ends: discounted rewards to the rollout's end, then its last next value
+    for t in range(4):
+        want = sum(g ** (k - t) * r[k, 0] for k in range(t, 4)) + g ** (4 - t) * v[3, 0]
+        np.testing.assert_allclose(got[t, 0], want, rtol=1e-6)
+    # env 2 terminates after step 1: a plain Monte-Carlo return, no value at all
+    np.testing.assert_allclose(got[0, 2], r[0, 2] + g * r[1, 2], rtol=1e-6)
+    # env 1 is truncated after step 1: Monte-Carlo to the cut, then the final observation
+    np.testing.assert_allclose(got[0, 1], r[0, 1] + g * r[1, 1] + g**2 * v[1, 1], rtol=1e-6)
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    steps=st.integers(1, 6),
+    envs=st.integers(1, 3),
+    gamma=st.floats(0.0, 1.0),
+    lam=st.floats(0.0, 1.0),
+    seed=st.integers(0, 2**31 - 1),
+)
+def test_lambda_returns_match_the_reference_on_random_rollouts(steps, envs, gamma, lam, seed):
+    rng = np.random.default_rng(seed)
+    reward = rng.normal(size=(steps, envs))
+    next_value = rng.normal(scale=3.0, size=(steps, envs))
+    done = rng.random((steps, envs)) < 0.3
+    terminated = done & (rng.random((steps, envs)) < 0.5)  # a terminal state ends the episode
+    got = returns_of(reward, terminated, done, next_value, gamma, lam)
+    want = reference_lambda_returns(reward, terminated, done, next_value, gamma, lam)
+    np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-5)
+
+
+# ------------------------------------------------------------------ tiny runs
+@pytest.fixture(scope="module")
+def pqn_trainer() -> Trainer:
+    return Trainer(TINY_PQN)
+
+
+@pytest.fixture(scope="module")
+def pqn_train(pqn_trainer):
+    """``jit(vmap(trainer.train))`` over keys."""
+    return jax.jit(jax.vmap(pqn_trainer.train))
+
+
+def test_pqn_allocates_no_replay_memory_and_no_target_network(pqn_trainer):
+    state = jax.eval_shape(pqn_trainer.init, jax.random.key(0))
+    assert state.buffer is None and state.target_params is None
+    assert pqn_trainer.config.first_learning_iteration == 0  # learns from its first rollout
+
+
+def test_seeds_give_different_parameters_and_a_seed_repeats_bitwise(pqn_train, pqn_trainer):
+    keys = jax.random.split(jax.random.key(0), 2)
+    state, metrics = jax.device_get(pqn_train(keys))
+    again, _ = jax.device_get(pqn_train(keys))
+    for leaf, leaf_again in zip(
+        jax.tree.leaves(state.params), jax.tree.leaves(again.params), strict=True
+    ):
+        np.testing.assert_array_equal(leaf, leaf_again)
+        assert not np.array_equal(leaf[0], leaf[1])
+    assert not state.diverged.any() and np.isfinite(metrics["loss"]).all()
+    # every iteration learned: the loss is logged from the first interval on
+    assert (metrics["loss"] > 0).all()
+    assert metrics["env_steps"][0].tolist() == [32, 64, 96]
+
+
+def test_memory_check_counts_the_rollout_not_a_replay_buffer():
+    """A buffer size the DQN's replay could not hold is no obstacle to PQN, which keeps one
+    rollout; a rollout too large is refused naming the sizes PQN uses."""
+    big = dataclasses.replace(
+        TINY_TRAIN, num_seeds=64, num_envs=2**16, buffer_size=10**9, learning_starts=2**16
+    )
+    big = dataclasses.replace(big, total_timesteps=2**18, log_interval=2**16)
+    with pytest.raises(ValueError, match=r"buffer_size=1000000000.*GiB"):
+        Trainer(big)
+    Trainer(dataclasses.replace(big, algo="pqn"))  # 64 seeds x 2**16 envs x 1 step: fits
+    huge = dataclasses.replace(big, algo="pqn", num_envs=2**20, rollout_length=64)
+    huge = dataclasses.replace(huge, total_timesteps=2**26, log_interval=2**26)
+    with pytest.raises(ValueError, match=r"rollout_length=64.*num_envs=1048576.*GiB") as info:
+        Trainer(huge)
+    assert "buffer_size" not in str(info.value)
+
+
+# ------------------------------------------------------------------ bfloat16
+@pytest.mark.parametrize("layer_norm", [False, True], ids=["plain", "layer-norm"])
+def test_bfloat16_network_is_float32_network_within_bf16_rounding(layer_norm):
+    kw = dict(num_actions=4, hidden_sizes=(64, 64), layer_norm=layer_norm)
+    net32 = dqn.QNetwork(**kw)
+    net16 = dqn.QNetwork(**kw, compute_dtype="bfloat16")
+    obs = jax.random.normal(jax.random.key(0), (64, 10))
+    params = jax.jit(net32.init)(jax.random.key(1), obs)
+    # the same parameters (float32 in both) fit both networks
+    like16 = jax.eval_shape(net16.init, jax.random.key(1), obs)
+    assert jax.tree.map(lambda x: (x.shape, x.dtype), params) == jax.tree.map(
+        lambda x: (x.shape, x.dtype), like16
+    )
+    q32 = np.asarray(jax.jit(net32.apply)(params, obs))
+    q16 = jax.jit(net16.apply)(params, obs)
+    assert q16.dtype == jnp.float32
+    q16 = np.asarray(q16)
+    scale = np.abs(q32).max()
+    np.testing.assert_allclose(q16, q32, rtol=2e-2, atol=2e-2 * scale)
+    assert not np.array_equal(q16, q32)  # the products did run in bfloat16
+
+
+def test_bfloat16_pqn_run_trains_without_divergence():
+    trainer = Trainer(dataclasses.replace(TINY_PQN, compute_dtype="bfloat16"))
+    state, metrics = jax.device_get(jax.jit(trainer.train)(jax.random.key(0)))
+    assert int(state.diverged) == 0
+    assert np.isfinite(metrics["loss"]).all() and np.isfinite(metrics["q_mean"]).all()
+    assert all(x.dtype == jnp.float32 for x in jax.tree.leaves(state.params))
+
+
+# ------------------------------------------------------------------ refused configurations
+@pytest.mark.parametrize(
+    "overrides, named",
+    [
+        (dict(algo="pqn", num_envs=4, rollout_length=2, num_minibatches=3), "num_minibatches=3"),
+        (dict(algo="dqn", rollout_length=2), "rollout_length=2"),
+        (dict(algo="ppo"), "algo='ppo'"),
+        (dict(algo="pqn", compute_dtype="float16"), "compute_dtype='float16'"),
+    ],
+)
+def test_bad_pqn_settings_are_refused_naming_the_value(overrides, named):
+    with pytest.raises(ValueError, match=named):
+        dataclasses.replace(TINY_TRAIN, **overrides).validate()
+
+
+def test_cli_refuses_an_unknown_algorithm_in_one_line(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert train_main(["--algo", "ppo", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "ppo" in err and "Traceback" not in err
+    assert "dqn" in err and "pqn" in err  # says what would do
+    assert not out.exists()
+
+
+# ------------------------------------------------------------------ learning
+@pytest.mark.slow
+def test_pqn_learns_a_small_maze():
+    """The bar of test_learning.py's DQN: a 7x7 maze, greedy success >= 0.95 (0.99-1.0 over
+    seeds 0-4, 0.2 s of training each on one CPU core)."""
+    config = TrainConfig.for_env(
+        "GridMaze-v0",
+        algo="pqn",
+        env_kwargs={"size": 7, "max_steps": 30},
+        hidden_sizes=(64, 64),
+        total_timesteps=65_536,
+        eps_decay_steps=32_000,
+        log_interval=16_384,
+    )
+    trainer = Trainer(config)
+    state, metrics = jax.jit(trainer.train)(jax.random.key(0))
+    env, params = trainer.env, trainer.env_params
+    key = jax.random.key(99)
+    trained = evaluate(env, params, trainer.greedy_policy(state.params), key, 500)
+    rand = evaluate(env, params, random_policy(env.num_actions), key, 500)
+    assert trained["success_rate"] >= 0.95, trained
+    assert trained["mean_path_ratio"] <= 1.2, trained
+    assert rand["success_rate"] <= 0.3, rand
+    assert metrics["success_rate"][-1] > metrics["success_rate"][0] + 0.3
