@@ -205,10 +205,30 @@ class Trainer:
         frac = jnp.clip(1.0 - env_steps / hp.eps_decay_steps, 0.0, 1.0)
         return hp.eps_end + (hp.eps_start - hp.eps_end) * frac
 
-    def _gradient_step(
+    def minibatch_loss(self, ts: TrainState) -> Callable[[Any, Any], tuple[jax.Array, dict]]:
+        """The algorithm's loss of one minibatch, ``loss(params, batch) -> (loss, aux)``, as
+        the training's gradient steps take it: for DQN the TD loss against ``ts``'s target
+        network on a ``dqn.buffer_sample`` batch, for PQN the regression on ``(obs [B, D],
+        action [B], target [B])`` (the target a lambda-return)."""
+        c = self.config
+        if c.algo == "dqn":
+            return lambda params, batch: dqn.td_loss(
+                params, ts.target_params, self.network.apply, batch, c.double, c.loss
+            )
+
+        def loss_fn(params, batch):
+            obs, action, target = batch
+            return dqn.regression_loss(params, self.network.apply, obs, action, target, c.loss)
+
+        return loss_fn
+
+    def gradient_step(
         self, ts: TrainState, batch: Any, loss_fn: Callable
     ) -> tuple[TrainState, dict]:
-        """One optimizer step on ``loss_fn(params, batch) -> (loss, aux)``."""
+        """One optimizer step (gradient clipping, then Adam or SGD at the scheduled learning
+        rate) on ``loss_fn(params, batch) -> (loss, aux)``, e.g. ``minibatch_loss(ts)``;
+        returns the new state and ``{"loss": loss, **aux}``. Every update of both
+        algorithms is this step."""
         # data parallel over a seed's devices: each computes the loss and gradient of its part
         # of the batch, and XLA sums the parts (the gradient averaging of ``sharded``)
         batch = jax.lax.with_sharding_constraint(batch, NamedSharding(self.mesh, P(ENVS)))
@@ -220,13 +240,7 @@ class Trainer:
     def _dqn_update(self, ts: TrainState, key: jax.Array) -> tuple[TrainState, dict]:
         c = self.config
         batch = dqn.buffer_sample(ts.buffer, key, c.batch_size, c.n_step, ts.hparams.gamma)
-
-        def loss_fn(params, batch):
-            return dqn.td_loss(
-                params, ts.target_params, self.network.apply, batch, c.double, c.loss
-            )
-
-        return self._gradient_step(ts, batch, loss_fn)
+        return self.gradient_step(ts, batch, self.minibatch_loss(ts))
 
     def _env_step(
         self, ts: TrainState, keys: tuple[jax.Array, jax.Array, jax.Array], eps: jax.Array
@@ -322,10 +336,7 @@ class Trainer:
             tr.action.reshape(n),
             jax.lax.stop_gradient(targets).reshape(n),
         )
-
-        def loss_fn(params, batch):
-            obs, action, target = batch
-            return dqn.regression_loss(params, self.network.apply, obs, action, target, c.loss)
+        loss_fn = self.minibatch_loss(ts)
 
         def epoch(ts, k):
             order = jax.random.permutation(k, n)
@@ -333,7 +344,7 @@ class Trainer:
                 lambda x: x[order].reshape(c.num_minibatches, -1, *x.shape[1:]), data
             )
             return jax.lax.scan(
-                lambda ts, batch: self._gradient_step(ts, batch, loss_fn), ts, minibatches
+                lambda ts, batch: self.gradient_step(ts, batch, loss_fn), ts, minibatches
             )
 
         ts, aux = jax.lax.scan(epoch, ts, jax.random.split(key, c.num_epochs))
@@ -439,7 +450,7 @@ class Trainer:
         replicated on every device and host.
 
         The program is the one-device program; XLA partitions it (GSPMD) from the layout of
-        the state and the batch constraint in ``_update``, so a sharded run computes what one
+        the state and the batch constraint in ``gradient_step``, so a sharded run computes what one
         device does, up to the order of floating-point sums."""
         state_like = jax.eval_shape(jax.vmap(self.init), keys)
         specs = sharding.state_specs(state_like)
