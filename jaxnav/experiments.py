@@ -420,6 +420,7 @@ EXAMPLE_MAZES = EXAMPLE_MAZE.parent
 # other override of the run, e.g. its sensors, observation, speed or backend, is)
 MAZE_KEYS = frozenset(
     {"maze", "maze_file", "maze_seed", "num_layouts", "random_size", "num_wall_slots"}
+    | {"families", "num_goal_cells"}
     | {"layout_seed", "random_layouts", "goals_per_layout", "obstacle_density", "size"}
 )
 OWN = "own"  # a family's env: the run's own env id, with all its overrides
@@ -445,7 +446,15 @@ class Family:
         """``(env id, env overrides)`` for a run trained with ``config``."""
         if self.env == OWN:
             return config.env, {**config.env_kwargs, **self.env_kwargs}
-        carried = {k: v for k, v in config.env_kwargs.items() if k not in MAZE_KEYS}
+        # every setting of the run's env that differs from this env's (the run id's own
+        # settings too, e.g. RobotNav-v0's sensors), less the maze-picking ones
+        trained = dataclasses.asdict(env_config(config.env, **config.env_kwargs))
+        target = dataclasses.asdict(env_config(self.env, **self.env_kwargs))
+        carried = {
+            k: v
+            for k, v in trained.items()
+            if k in target and k not in MAZE_KEYS and v != target[k]
+        }
         return self.env, {**carried, **self.env_kwargs}
 
 
@@ -461,7 +470,10 @@ def default_families(config: TrainConfig, maze_seed: int = HELD_OUT_MAZE_SEED) -
     else:
         own = Family(f"{config.env} (training mazes: no maze_seed to hold out)", OWN)
     files = [
-        Family(f"{f.name} (RobotMaze-v0)", "RobotMaze-v0", {"maze_file": str(f)})
+        # slots to spare: an env uses as many as its maze needs
+        Family(
+            f"{f.name} (RobotMaze-v0)", "RobotMaze-v0", {"maze_file": str(f), "num_wall_slots": 64}
+        )
         for f in sorted(EXAMPLE_MAZES.glob("*.txt"))
     ]
     robots = [Family(e, e) for e in ("RobotSimple-v0", "RobotComplex-v0")]

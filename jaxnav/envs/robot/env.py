@@ -116,6 +116,9 @@ class RobotConfig:
     obs_proximity: bool = True
     obs_heading: bool = False
     obs_goal_bearing: bool = True  # (sin, cos) of the goal's direction relative to the heading
+    # a global planner's hint: (sin, cos) of the direction to the point ``waypoint_cells`` cells
+    # ahead on a shortest path through the maze's free cells, and its distance / laser_range
+    waypoint_cells: int = 0  # 0: no waypoint in the frame
     goal_reward: float = 10.0
     collision_reward: float = -5.0
     step_reward_start: float = -0.5
@@ -136,6 +139,7 @@ class RobotConfig:
             ("mjx_substeps", 1, 1000),
             ("max_steps", 1, 1_000_000),
             ("frames", 1, 64),
+            ("waypoint_cells", 0, 64),
             ("num_lasers", 1, 1024),
             ("maze_seed", 0, 2**32 - 1),
             ("num_goal_cells", 0, 1_000_000),
@@ -264,15 +268,28 @@ GENERALIST: dict[str, Any] = {
     "num_wall_slots": 40,
     "num_lasers": 32,
     "laser_fov": 360.0,
+    "laser_range": 3.5,  # a small indoor lidar's; walls a step away read ~0.1, not ~0.01
     "obs_absolute": False,
-    "max_steps": 400,
+    "waypoint_cells": 2,
+    "turn_speed": 2.0,  # 0.2 rad a step: headings line up with 0.5 m corridors
+    "max_steps": 500,
+    "collision_reward": -10.0,
+    "step_reward_start": -0.1,
+    "step_reward_end": -0.2,
 }
 # The fields that shape RobotNav-v0's observation: pass them (and a num_wall_slots the maze
 # needs) to run its policy elsewhere, e.g.
 # ``jaxnav.make("RobotMaze-v0", maze_file=path, num_wall_slots=40, **GENERALIST_SENSORS)``
 GENERALIST_SENSORS: dict[str, Any] = {
-    k: GENERALIST[k] for k in ("num_lasers", "laser_fov", "obs_absolute")
+    k: GENERALIST[k]
+    for k in ("num_lasers", "laser_fov", "laser_range", "obs_absolute", "waypoint_cells")
 }
+
+def _bearing(offset: jax.Array, heading: jax.Array) -> jax.Array:
+    """(sin, cos) of the direction of ``offset`` (x, y) relative to ``heading``."""
+    angle = jnp.arctan2(offset[1], offset[0]) - heading
+    return jnp.stack([jnp.sin(angle), jnp.cos(angle)])
+
 
 def _positive(v: Any) -> bool:
     ok = isinstance(v, (int, float)) and not isinstance(v, bool)
@@ -359,6 +376,7 @@ class RobotNav(Environment[RobotState, RobotParams]):
         absolute = 4 * c.obs_absolute  # goal (x, y), robot (x, y)
         return (
             c.num_lasers + absolute + c.obs_proximity + 2 * c.obs_heading + 2 * c.obs_goal_bearing
+            + 3 * (c.waypoint_cells > 0)
         )
 
     def observation_space(self, params: RobotParams | None = None) -> spaces.Box:
@@ -504,23 +522,55 @@ class RobotNav(Environment[RobotState, RobotParams]):
         cells (4-neighbour steps x cell size); -1 where none is known (unreachable, or, in a
         bank with K goal cells per maze, a goal that is none of them)."""
         bank = params.bank
+        row, col = self._cell(pose[:2], bank)
+        steps = self._steps_to_goal(goal, layout, bank)[row, col]
+        return jnp.where(steps >= 0, steps * bank.cell_size, -1.0)
+
+    @staticmethod
+    def _cell(xy: jax.Array, bank: mazes.MazeBank) -> tuple[jax.Array, jax.Array]:
+        """(row, col) of the cell holding point ``xy`` (row 0 at the top), clipped to the grid."""
         rows, cols = bank.grid.shape[1:]
+        col = jnp.clip(jnp.floor(xy[0] / bank.cell_size), 0, cols - 1).astype(jnp.int32)
+        row = rows - 1 - jnp.clip(jnp.floor(xy[1] / bank.cell_size), 0, rows - 1)
+        return row.astype(jnp.int32), col
 
-        def cell(xy):
-            col = jnp.clip(jnp.floor(xy[0] / bank.cell_size), 0, cols - 1).astype(jnp.int32)
-            row = rows - 1 - jnp.clip(jnp.floor(xy[1] / bank.cell_size), 0, rows - 1)
-            return row.astype(jnp.int32), col
-
-        goal_row, goal_col = cell(goal)
-        row, col = cell(pose[:2])
+    def _steps_to_goal(self, goal: jax.Array, layout: jax.Array, bank: mazes.MazeBank) -> jax.Array:
+        """int[rows, cols] BFS steps from every cell to the goal's cell; -1 where unknown."""
+        cols = bank.grid.shape[2]
+        goal_row, goal_col = self._cell(goal, bank)
         source = goal_row * cols + goal_col
         if bank.goal_source is None:
-            steps = bank.goal_distance[layout, source, row, col]
-        else:
-            source = bank.goal_source[layout, source]
-            steps = bank.goal_distance[layout, jnp.maximum(source, 0), row, col]
-            steps = jnp.where(source >= 0, steps, -1)
-        return jnp.where(steps >= 0, steps * bank.cell_size, -1.0)
+            return bank.goal_distance[layout, source]
+        source = bank.goal_source[layout, source]
+        steps = bank.goal_distance[layout, jnp.maximum(source, 0)]
+        return jnp.where(source >= 0, steps, -1)
+
+    def waypoint(
+        self, pose: jax.Array, goal: jax.Array, layout: jax.Array, params: RobotParams
+    ) -> jax.Array:
+        """The point ``waypoint_cells`` cells ahead of the robot's cell on a shortest path to
+        the goal (descending the BFS distances, 4-neighbour steps): a cell centre, or the goal
+        itself once the path reaches the goal's cell or where no path is known."""
+        bank = params.bank
+        rows, cols = bank.grid.shape[1:]
+        steps = self._steps_to_goal(goal, layout, bank)
+        far = jnp.iinfo(jnp.int32).max  # walls, unknown cells and the arena's outside
+        known = jnp.where(steps >= 0, steps.astype(jnp.int32), far)
+        padded = jnp.pad(known, 1, constant_values=far)
+        row, col = self._cell(pose[:2], bank)
+        for _ in range(self.config.waypoint_cells):  # a few static steps
+            # the neighbours up, down, left, right (padding stands for the arena's outside)
+            around = jnp.stack(
+                [padded[row, col + 1], padded[row + 2, col + 1], padded[row + 1, col],
+                 padded[row + 1, col + 2]]
+            )  # fmt: skip
+            best = jnp.argmin(around)
+            better = around[best] < known[row, col]
+            row = jnp.where(better, row + jnp.array([-1, 1, 0, 0])[best], row)
+            col = jnp.where(better, col + jnp.array([0, 0, -1, 1])[best], col)
+        centre = jnp.stack([(col + 0.5), (rows - 0.5 - row)]).astype(jnp.float32) * bank.cell_size
+        use_goal = (known[row, col] == 0) | (steps[self._cell(pose[:2], bank)] < 0)
+        return jnp.where(use_goal, goal, centre)
 
     def lasers(self, pose: jax.Array, layout: jax.Array, params: RobotParams) -> jax.Array:
         """Laser ranges in metres (not normalized)."""
@@ -546,9 +596,11 @@ class RobotNav(Environment[RobotState, RobotParams]):
         if self.config.obs_heading:
             parts.append(jnp.stack([jnp.sin(pose[2]), jnp.cos(pose[2])]))
         if self.config.obs_goal_bearing:
-            to_goal = goal - pose[:2]
-            bearing = jnp.arctan2(to_goal[1], to_goal[0]) - pose[2]
-            parts.append(jnp.stack([jnp.sin(bearing), jnp.cos(bearing)]))
+            parts.append(_bearing(goal - pose[:2], pose[2]))
+        if c.waypoint_cells:
+            to_waypoint = self.waypoint(pose, goal, layout, params) - pose[:2]
+            parts.append(_bearing(to_waypoint, pose[2]))
+            parts.append(jnp.minimum(jnp.linalg.norm(to_waypoint) / c.laser_range, 1.0)[None])
         # Materialize the frame: otherwise XLA fuses the ray casts into the stacking of
         # frames and recasts them for every stacked element (half of a GPU step's time)
         return jax.lax.optimization_barrier(jnp.concatenate(parts))
