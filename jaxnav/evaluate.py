@@ -122,6 +122,9 @@ def play(
     return out
 
 
+MIN_EPISODES_PER_MAZE = 5  # of every maze played, for a worst-10% success
+
+
 def maze_success(episodes: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
     """``(success rate, episodes)`` of each layout (maze) 0 .. max layout played, grouped by
     ``episodes["layout"]`` (a layout without episodes has rate NaN and count 0)."""
@@ -154,7 +157,9 @@ def summarize(episodes: dict[str, jax.Array]) -> dict[str, float | None]:
     (``env.step_length``, ``env.shortest_path_length``) over successful episodes whose shortest
     path is known; None where there are none (never 0 for something not measured).
     ``worst10_success``: ``worst_fraction_mean`` of the per-maze success rates
-    (``maze_success``); ``mazes``: the mazes played.
+    (``maze_success``), None where a maze was played fewer than ``MIN_EPISODES_PER_MAZE``
+    times (with one episode a maze's rate is 0 or 1 and the worst 10% is 0 by construction);
+    ``mazes``: the mazes played.
     """
     ep = {k: np.asarray(v) for k, v in episodes.items()}
     success = ep["success"].astype(bool)
@@ -174,7 +179,11 @@ def summarize(episodes: dict[str, jax.Array]) -> dict[str, float | None]:
             float((travelled[has_path] / shortest[has_path]).mean()) if has_path.any() else None
         ),
         "mazes": float(np.count_nonzero(np.asarray(counts))),
-        "worst10_success": worst_fraction_mean(per_maze, 0.1),
+        "worst10_success": (
+            worst_fraction_mean(per_maze, 0.1)
+            if np.min(np.asarray(counts)[np.asarray(counts) > 0]) >= MIN_EPISODES_PER_MAZE
+            else None
+        ),
     }
     return out
 
