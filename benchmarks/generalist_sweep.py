@@ -1,0 +1,209 @@
+"""The generalist's levers, measured: PQN on ``RobotNav-v0`` with one setting changed per row,
+each trained once and tested greedily on held-out mazes, the paper's mazes and the maze files.
+
+    python -m benchmarks.generalist_sweep [--rows 0,3] [--episodes 1000] \
+        [--out benchmarks/results/generalist_sweep.jsonl]
+
+Every row is ``TrainConfig.for_env("RobotNav-v0", algo="pqn")`` with the row's env and training
+overrides, seed 0, ``eval_episodes`` 0. After training, ``--episodes`` greedy episodes (test
+key 1234, mazes round-robin) on: the training bank; 1,000 held-out mazes (``maze_seed``
+1,000,003); RobotSimple-v0, RobotComplex-v0 and every file of examples/mazes with the run's
+settings (``experiments.default_families``). One JSON line per row (appended to ``--out``) and a
+markdown table beside it. Rows run one after another in one process; each is a full training.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+
+import jaxnav
+from benchmarks.common import machine_info
+from jaxnav.config import TrainConfig
+from jaxnav.envs.robot.env import LASER_SCALE
+from jaxnav.evaluate import run_episodes
+from jaxnav.experiments import Family, default_families
+from jaxnav.train import Trainer
+
+# RobotNav-v0 before the levers below: the paper's speed, turn rate and reward terms, a 14 m
+# lidar, no waypoint
+BEFORE = {
+    "laser_range": LASER_SCALE,
+    "turn_speed": 5.0,
+    "max_steps": 400,
+    "collision_reward": -5.0,
+    "step_reward_start": -0.5,
+    "step_reward_end": -1.0,
+    "waypoint_cells": 0,
+}
+LEVERS = {  # what the generalist's settings change from BEFORE
+    "laser_range": 3.5,
+    "turn_speed": 2.0,
+    "max_steps": 500,
+    "collision_reward": -10.0,
+    "step_reward_start": -0.1,
+    "step_reward_end": -0.2,
+}
+WIDE = {"num_envs": 16384, "rollout_length": 16, "num_minibatches": 8, "num_epochs": 2}
+DEEP = {"num_envs": 4096, "rollout_length": 32, "num_minibatches": 32, "num_epochs": 4}
+STEPS = {"total_timesteps": 100_000_000, "td_lambda": 0.9}
+# (label, env overrides, training overrides)
+ROWS: list[tuple[str, dict[str, Any], dict[str, Any]]] = [
+    (
+        "before, 16 updates per iteration",
+        BEFORE,
+        {**WIDE, **STEPS, "gamma": 0.95, "td_lambda": 0.65},
+    ),
+    ("+ gamma 0.99", BEFORE, {**WIDE, **STEPS, "gamma": 0.99, "td_lambda": 0.65}),
+    ("+ lambda 0.9 (gamma 0.95)", BEFORE, {**WIDE, **STEPS, "gamma": 0.95}),
+    (
+        "+ levers (3.5 m lidar, 0.2 rad turns, rewards)",
+        {**BEFORE, **LEVERS},
+        {**WIDE, **STEPS, "gamma": 0.99},
+    ),
+    (
+        "+ levers but 0.5 rad turns",
+        {**BEFORE, **LEVERS, "turn_speed": 5.0},
+        {**WIDE, **STEPS, "gamma": 0.99},
+    ),
+    (
+        "+ levers but a 14 m lidar",
+        {**BEFORE, **LEVERS, "laser_range": LASER_SCALE},
+        {**WIDE, **STEPS, "gamma": 0.99},
+    ),
+    ("before, 128 updates per iteration", BEFORE, {**DEEP, **STEPS, "gamma": 0.95}),
+    ("+ levers, 128 updates", {**BEFORE, **LEVERS}, {**DEEP, **STEPS, "gamma": 0.99}),
+    (
+        "+ levers, 16,384 envs, 256 updates",
+        {**BEFORE, **LEVERS},
+        {**WIDE, **STEPS, "num_minibatches": 64, "num_epochs": 4, "gamma": 0.99},
+    ),
+    (
+        "before + waypoint 4 cells, 128 updates",
+        {**BEFORE, "waypoint_cells": 4},
+        {**DEEP, **STEPS, "gamma": 0.95},
+    ),
+    (
+        "+ levers + waypoint 4 cells",
+        {**BEFORE, **LEVERS, "waypoint_cells": 4},
+        {**DEEP, **STEPS, "gamma": 0.99},
+    ),
+    (
+        "+ levers + waypoint 2 cells (RobotNav-v0)",
+        {**BEFORE, **LEVERS, "waypoint_cells": 2},
+        {**DEEP, **STEPS, "gamma": 0.99},
+    ),
+    (
+        "RobotNav-v0, 200M steps",
+        {**BEFORE, **LEVERS, "waypoint_cells": 2},
+        {**DEEP, **STEPS, "gamma": 0.99, "total_timesteps": 200_000_000, "log_interval": 8_000_000},
+    ),
+    (
+        "RobotNav-v0, 8,192 envs, 200M steps",
+        {**BEFORE, **LEVERS, "waypoint_cells": 2},
+        {
+            **DEEP,
+            **STEPS,
+            "num_envs": 8192,
+            "num_minibatches": 64,
+            "gamma": 0.99,
+            "total_timesteps": 200_000_000,
+            "log_interval": 8_000_000,
+        },
+    ),
+]
+TEST_KEY = 1234
+
+
+def families(config: TrainConfig) -> list[Family]:
+    held_out = Family("held-out", "own", {"maze_seed": 1_000_003, "num_layouts": 1000})
+    return [Family("training bank", "own"), held_out, *default_families(config)[1:]]
+
+
+def run_row(index: int, episodes: int) -> dict[str, Any]:
+    label, env_kwargs, overrides = ROWS[index]
+    config = TrainConfig.for_env(
+        "RobotNav-v0", algo="pqn", env_kwargs=env_kwargs, eval_episodes=0, **overrides
+    )
+    trainer = Trainer(config)
+    train = jax.jit(trainer.train)
+    t0 = time.perf_counter()
+    compiled = train.lower(jax.random.key(0)).compile()
+    t1 = time.perf_counter()
+    state, metrics = jax.block_until_ready(compiled(jax.random.key(0)))
+    t2 = time.perf_counter()
+    steps = int(metrics["env_steps"][-1])
+    row: dict[str, Any] = {
+        "row": index,
+        "label": label,
+        "env_kwargs": env_kwargs,
+        "train": overrides,
+        "compile_s": round(t1 - t0, 1),
+        "train_s": round(t2 - t1, 2),
+        "env_steps": steps,
+        "env_steps_per_s": steps / (t2 - t1),
+        "diverged": int(state.diverged),
+        "tests": {},
+    }
+    policy = trainer.greedy_policy(state.params)
+    for family in families(config):
+        env_id, kwargs = family.for_run(config)
+        env, params = jaxnav.make(env_id, **kwargs)
+        out = run_episodes(
+            env, params, policy, jax.random.key(TEST_KEY), episodes, params.max_steps_in_episode
+        )
+        row["tests"][family.name] = {
+            "success": float(np.mean(out["success"])),
+            "collision": float(np.mean(out["collision"])),
+        }
+    return row
+
+
+def markdown(rows: list[dict[str, Any]]) -> str:
+    names = list(rows[0]["tests"])
+    head = "| row | setting | train s | env steps/s | " + " | ".join(names) + " |"
+    lines = [head, "|" + "---|" * (4 + len(names))]
+    for r in rows:
+        cells = [f"{t['success']:.3f} / {t['collision']:.3f}" for t in r["tests"].values()]
+        lines.append(
+            f"| {r['row']} | {r['label']} | {r['train_s']:.1f} | {r['env_steps_per_s']:,.0f} | "
+            + " | ".join(cells)
+            + " |"
+        )
+    return "\n".join(lines) + "\n\nCells: greedy success / collision rate.\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m benchmarks.generalist_sweep")
+    p.add_argument("--rows", default=",".join(map(str, range(len(ROWS)))))
+    p.add_argument("--episodes", type=int, default=1000)
+    p.add_argument("--out", type=Path, default=Path("benchmarks/results/generalist_sweep.jsonl"))
+    args = p.parse_args(argv)
+    try:
+        rows = [int(r) for r in args.rows.split(",")]
+        if not rows or not all(0 <= r < len(ROWS) for r in rows) or args.episodes < 1:
+            raise ValueError
+    except ValueError:
+        p.exit(2, f"{p.prog}: --rows {args.rows!r} / --episodes {args.episodes}: rows are "
+               f"0..{len(ROWS) - 1}, episodes >= 1\n")  # fmt: skip
+    done = []
+    for index in rows:
+        row = run_row(index, args.episodes) | {"machine": machine_info()}
+        print(json.dumps(row), flush=True)
+        with args.out.open("a") as f:
+            f.write(json.dumps(row) + "\n")
+        done.append(row)
+    all_rows = [json.loads(line) for line in args.out.read_text().splitlines() if line.strip()]
+    args.out.with_suffix(".md").write_text(markdown(all_rows))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
