@@ -126,7 +126,8 @@ def test_cli_process_exit_code_and_help():
         [sys.executable, "-m", "jaxnav.train", "--help"], capture_output=True, text=True
     )
     assert helped.returncode == 0
-    for flag in ("--env", "--num-seeds", "--total-timesteps", "--gamma", "--env-arg", "--out"):
+    flags = ("--env", "--algo", "--num-seeds", "--total-timesteps", "--gamma", "--env-arg", "--out")
+    for flag in flags:
         assert flag in helped.stdout
     assert "default: 240000" in helped.stdout
     missing = subprocess.run(

@@ -14,6 +14,7 @@ import pytest
 import jaxnav
 from jaxnav.cli import evaluate_main, train_main
 from jaxnav.evaluate import (
+    MIN_EPISODES_PER_MAZE,
     bootstrap_ci,
     iqm,
     layout_assignment,
@@ -51,6 +52,43 @@ def test_maze_success_groups_episodes_by_layout():
     np.testing.assert_array_equal(counts, [2, 2, 2])
 
 
+def episodes_of(layout, success) -> dict[str, np.ndarray]:
+    """Hand-made episodes (as ``play`` returns them) in ``layout`` with ``success``."""
+    success = np.asarray(success, bool)
+    n = len(success)
+    return {
+        "return": np.where(success, 10.0, -5.0),
+        "steps": np.full(n, 20),
+        "success": success,
+        "collision": ~success,
+        "timeout": np.zeros(n, bool),
+        "shortest_path": np.full(n, 4.0),
+        "path_length": np.full(n, 5.0),
+        "layout": np.asarray(layout, np.int32),
+    }
+
+
+def test_worst_ten_percent_needs_five_episodes_of_every_maze_played():
+    k = MIN_EPISODES_PER_MAZE
+    assert k == 5
+    # mazes 0, 1, 2 with success 1.0, 0.6, 0.2 over 5 episodes each: the worst maze's 0.2
+    layout = np.repeat([0, 1, 2], k)
+    success = [1, 1, 1, 1, 1] + [1, 1, 1, 0, 0] + [1, 0, 0, 0, 0]
+    row = summarize(episodes_of(layout, success))
+    assert row["mazes"] == 3 and row["worst10_success"] == pytest.approx(0.2)
+    # one maze a single episode short: not a number, whatever the others
+    short = summarize(episodes_of(layout[1:], success[1:]))
+    assert short["worst10_success"] is None and short["success_rate"] == pytest.approx(8 / 14)
+    # one episode per maze (rate 0 or 1, the worst 10% is 0 by construction): None
+    assert summarize(episodes_of(np.arange(20), [1] * 19 + [0]))["worst10_success"] is None
+    # a maze not played (layout 1 of 0..2) does not count
+    skipped = layout != 1
+    row = summarize(episodes_of(layout[skipped], np.asarray(success)[skipped]))
+    assert row["mazes"] == 2 and row["worst10_success"] == pytest.approx(0.2)
+    # one maze, many episodes
+    assert summarize(episodes_of(np.zeros(8), [1] * 6 + [0] * 2))["worst10_success"] == 0.75
+
+
 @pytest.mark.parametrize("episodes, mazes", [(12, 4), (13, 4), (3, 1)])
 def test_layout_assignment_is_round_robin(episodes, mazes):
     counts = np.bincount(layout_assignment(episodes, mazes), minlength=mazes)
@@ -72,9 +110,10 @@ def test_run_episodes_gives_every_maze_the_same_number_of_episodes(env_id, kwarg
     env, params = jaxnav.make(env_id, **kwargs)
     mazes = env.num_layouts(params)
     run = jax.jit(run_episodes, static_argnums=(0, 2, 4, 5))
-    out = run(env, params, _random, jax.random.key(0), 3 * mazes, 20)
+    per_maze = MIN_EPISODES_PER_MAZE  # the fewest with which worst-10% is a number
+    out = run(env, params, _random, jax.random.key(0), per_maze * mazes, 20)
     _, counts = maze_success(out)
-    np.testing.assert_array_equal(counts, [3] * mazes)
+    np.testing.assert_array_equal(counts, [per_maze] * mazes)
     row = summarize(out)
     assert row["mazes"] == mazes
     assert 0.0 <= row["worst10_success"] <= row["success_rate"] <= 1.0

@@ -440,7 +440,8 @@ def test_generalist_env_resets_to_goal_cells_and_rolls_out():
         360.0,
         False,
     )
-    assert env.observation_space(params).shape == (c.frames * (32 + 1 + 2),)
+    # lasers, D, goal bearing, waypoint (sin, cos, distance)
+    assert env.observation_space(params).shape == (c.frames * (32 + 1 + 2 + 3),)
     assert env.num_wall_slots <= c.num_wall_slots
     bank = params.bank
     assert bank.goal_distance.shape == (8, c.num_goal_cells, 20, 20)

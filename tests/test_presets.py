@@ -1,0 +1,99 @@
+"""Training presets (``jaxnav.presets``): one per (algorithm, env id), applied by
+``TrainConfig.for_env`` and the training CLI under the caller's own values."""
+
+from __future__ import annotations
+
+import pytest
+
+from jaxnav.cli import config_from_args, train_parser
+from jaxnav.config import ALGOS, TrainConfig
+from jaxnav.presets import GENERALIST_PQN, PRESETS, ROBOT_DQN, train_defaults
+from jaxnav.registration import registered_envs
+
+CORRIDOR = "#######\n.......\n#######\n"
+
+
+@pytest.fixture(scope="module")
+def maze_file(tmp_path_factory):
+    path = tmp_path_factory.mktemp("maze") / "corridor.txt"
+    path.write_text(CORRIDOR)
+    return str(path)
+
+
+def env_kwargs(env_id: str, maze_file: str) -> dict:
+    return {"maze_file": maze_file} if env_id == "RobotMaze-v0" else {}
+
+
+def test_presets_cover_every_algorithm_and_env_id():
+    assert set(PRESETS) == set(ALGOS)
+    for algo in ALGOS:
+        assert set(PRESETS[algo]) == set(registered_envs()), algo
+
+
+@pytest.mark.parametrize("algo", ALGOS)
+@pytest.mark.parametrize("env_id", registered_envs())
+def test_for_env_applies_the_preset_and_validates(env_id, algo, maze_file):
+    config = TrainConfig.for_env(env_id, algo=algo, env_kwargs=env_kwargs(env_id, maze_file))
+    config.validate()
+    assert config.env == env_id and config.algo == algo
+    preset = train_defaults(env_id, algo)
+    for name, value in preset.items():
+        assert getattr(config, name) == value, name
+    # everything else is TrainConfig's default
+    default = TrainConfig()
+    for name in set(TrainConfig.__dataclass_fields__) - set(preset) - {"env", "algo", "env_kwargs"}:
+        assert getattr(config, name) == getattr(default, name), name
+
+
+def test_the_generalists_pqn_preset_and_the_robot_dqn_one():
+    nav = TrainConfig.for_env("RobotNav-v0", algo="pqn")
+    assert (nav.num_envs, nav.rollout_length, nav.num_minibatches, nav.num_epochs) == (
+        8192,
+        32,
+        64,
+        4,
+    )
+    assert nav.layer_norm and nav.total_timesteps == 100_000_000 and nav.gamma == 0.99
+    assert train_defaults("RobotNav-v0", "pqn") == GENERALIST_PQN
+    # the other robot envs keep the smaller PQN preset; DQN is the same on every robot env
+    assert TrainConfig.for_env("RobotSimple-v0", algo="pqn").num_envs == 256
+    assert train_defaults("RobotNav-v0") == train_defaults("RobotSimple-v0") == ROBOT_DQN
+    assert train_defaults("GridMaze-v0") == {}  # the paper's grid: TrainConfig's defaults
+    # a copy: changing it does not change the preset
+    train_defaults("RobotNav-v0", "pqn")["num_envs"] = 1
+    assert GENERALIST_PQN["num_envs"] == 8192
+
+
+@pytest.mark.parametrize(
+    "call, named",
+    [
+        (lambda: train_defaults("Nope-v0"), "unknown env id 'Nope-v0'; valid ids: GridMaze-v0"),
+        (lambda: train_defaults("GridMaze-v0", "ppo"), "algo='ppo': must be one of dqn, pqn"),
+        (lambda: TrainConfig.for_env("Nope-v0"), "unknown env id 'Nope-v0'"),
+        (lambda: TrainConfig.for_env("RobotNav-v0", algo="ppo"), "algo='ppo'"),
+    ],
+)
+def test_unknown_env_or_algorithm_is_a_one_line_error(call, named):
+    with pytest.raises(ValueError) as e:
+        call()
+    assert named in str(e.value) and "\n" not in str(e.value)
+
+
+def test_explicit_values_beat_the_preset():
+    config = TrainConfig.for_env("RobotNav-v0", algo="pqn", num_envs=64, gamma=0.9)
+    assert (config.num_envs, config.gamma) == (64, 0.9)
+    assert config.rollout_length == GENERALIST_PQN["rollout_length"]  # the rest: the preset
+    config.validate()
+    dqn = TrainConfig.for_env("RobotSimple-v0", n_step=1, algo="dqn")
+    assert dqn.n_step == 1 and dqn.gamma == ROBOT_DQN["gamma"]
+
+
+def test_training_cli_lists_algo_and_applies_the_preset_under_its_flags():
+    text = train_parser().format_help()
+    assert "--algo" in text and "pqn" in text
+    parse = lambda *argv: config_from_args(train_parser().parse_args(list(argv)))  # noqa: E731
+    config = parse("--env", "RobotNav-v0", "--algo", "pqn", "--num-envs", "64")
+    assert config.algo == "pqn" and config.num_envs == 64
+    assert config.rollout_length == 32 and config.td_lambda == GENERALIST_PQN["td_lambda"]
+    assert parse("--env", "RobotNav-v0").n_step == ROBOT_DQN["n_step"]  # dqn by default
+    assert parse().algo == "dqn" and parse().env == "GridMaze-v0"

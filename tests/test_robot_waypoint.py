@@ -1,0 +1,254 @@
+"""The planner's waypoint of the robot env (``waypoint_cells``): the point that many cells ahead
+on a shortest path to the goal, checked against an independent BFS on the maze grid, and its
+(sin, cos, distance) in the observation frame."""
+
+from __future__ import annotations
+
+import collections
+import functools
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxnav
+from jaxnav.envs.robot.env import GENERALIST, GENERALIST_SENSORS
+from jaxnav.registration import env_config
+
+KEY = jax.random.key(0)
+FORWARD, LEFT = 0, 2
+
+
+def tiny(env_id: str) -> dict:
+    """A small bank for the generalist, the fast backend for the paper's mazes."""
+    return {"num_layouts": 4} if env_id == "RobotNav-v0" else {"backend": "kinematic"}
+
+
+@functools.cache
+def make(env_id: str, **overrides):
+    """A tiny env (cached per id and overrides) and its jitted, batched ``waypoint``."""
+    env, params = jaxnav.make(env_id, **{**tiny(env_id), **overrides})
+    waypoint = jax.jit(jax.vmap(env.waypoint, in_axes=(0, 0, 0, None)))
+    return env, params, waypoint
+
+
+# (env id, overrides): the generalist (K = 32 goal cells per maze, waypoint_cells=2) and the
+# paper's complex maze (every cell a goal) with other waypoint distances
+ENVS = [
+    ("RobotNav-v0", ()),
+    ("RobotNav-v0", (("waypoint_cells", 5),)),
+    ("RobotComplex-v0", (("waypoint_cells", 1),)),
+    ("RobotComplex-v0", (("waypoint_cells", 3),)),
+]
+ENV_IDS = ["generalist", "generalist-5-cells", "complex-1-cell", "complex-3-cells"]
+
+
+def bfs(grid: np.ndarray, source: tuple[int, int]) -> np.ndarray:
+    """4-neighbour steps from ``source`` to every cell of ``grid`` (True = wall); -1 where
+    none (walls, cells cut off)."""
+    rows, cols = grid.shape
+    dist = np.full(grid.shape, -1, np.int64)
+    dist[source] = 0
+    queue = collections.deque([source])
+    while queue:
+        r, c = queue.popleft()
+        for nr, nc in ((r - 1, c), (r + 1, c), (r, c - 1), (r, c + 1)):
+            if 0 <= nr < rows and 0 <= nc < cols and not grid[nr, nc] and dist[nr, nc] < 0:
+                dist[nr, nc] = dist[r, c] + 1
+                queue.append((nr, nc))
+    return dist
+
+
+def cell_of(xy, rows: int, cell_size: float) -> tuple[int, int]:
+    """(row, col) of the cell holding point ``xy`` (row 0 at the top)."""
+    return rows - 1 - int(math.floor(xy[1] / cell_size)), int(math.floor(xy[0] / cell_size))
+
+
+def episodes(params, n: int, seed: int):
+    """``n`` (layout, start xy, goal xy) with the goal one a reset may draw (a goal cell of the
+    maze where the bank keeps only some) and the start another free cell."""
+    bank = jax.device_get(params.bank)
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(n):
+        layout = int(rng.integers(bank.num_mazes))
+        free = int(bank.num_free[layout])
+        if bank.goal_index is None:
+            goal, start = rng.choice(free, 2, replace=False)
+        else:
+            goal = int(rng.choice(bank.goal_index[layout]))
+            start = int(rng.choice([i for i in range(free) if i != goal]))
+        out.append((layout, bank.free_xy[layout, start], bank.free_xy[layout, goal]))
+    return out
+
+
+@pytest.mark.parametrize("env_id, overrides", ENVS, ids=ENV_IDS)
+def test_following_waypoints_walks_a_shortest_path_to_the_goal(env_id, overrides):
+    """From random start points (anywhere the robot fits in a free cell, any heading), jumping
+    to each waypoint in turn: every waypoint is a free cell's centre exactly ``waypoint_cells``
+    BFS steps closer to the goal than the last, until the goal itself comes within
+    ``waypoint_cells``; so the goal is reached in ceil(d / waypoint_cells) hops."""
+    env, params, waypoint = make(env_id, **dict(overrides))
+    k = env.config.waypoint_cells
+    bank = jax.device_get(params.bank)
+    rows, cols = bank.grid.shape[1:]
+    cs = bank.cell_size
+    eps = episodes(params, 48, seed=k)
+    layout = np.array([e[0] for e in eps], np.int32)
+    goal = np.stack([e[2] for e in eps]).astype(np.float32)
+    rng = np.random.default_rng(1)
+    # off-centre starts, as far from the centre as the robot's radius allows, random headings
+    room = cs / 2 - env.config.radius
+    start = np.stack([e[1] for e in eps]) + rng.uniform(-room, room, (len(eps), 2))
+    pose = np.concatenate([start, rng.uniform(-np.pi, np.pi, (len(eps), 1))], 1)
+    pose = pose.astype(np.float32)
+    # the reference: BFS steps to each episode's goal cell, on its maze's grid
+    ref = [
+        bfs(np.asarray(bank.grid[lay]), cell_of(g, rows, cs))
+        for lay, g in zip(layout, goal, strict=True)
+    ]
+    steps = np.array([r[cell_of(p, rows, cs)] for r, p in zip(ref, pose, strict=True)])
+    assert (steps > 0).all()  # reachable, and not from the goal's own cell
+    hops = np.zeros(len(eps), int)
+    done = np.zeros(len(eps), bool)
+    for _ in range(int(steps.max()) + 2):  # a bound: each hop must come at least a step closer
+        if done.all():
+            break
+        wp = np.asarray(waypoint(jnp.asarray(pose), jnp.asarray(goal), jnp.asarray(layout), params))
+        for i in np.flatnonzero(~done):
+            hops[i] += 1
+            left = ref[i][cell_of(pose[i], rows, cs)]
+            if left <= k:  # within reach: the goal itself, to the bit
+                np.testing.assert_array_equal(wp[i], goal[i])
+                done[i] = True
+                continue
+            row, col = cell_of(wp[i], rows, cs)
+            assert not bank.grid[layout[i], row, col], f"episode {i}: waypoint in a wall"
+            centre = np.array([(col + 0.5) * cs, (rows - 0.5 - row) * cs])
+            np.testing.assert_allclose(wp[i], centre, atol=1e-5)
+            assert ref[i][row, col] == left - k, f"episode {i}: not {k} steps closer"
+            pose[i, :2] = wp[i]
+    assert done.all()
+    np.testing.assert_array_equal(hops, -(-steps // k))  # ceil(d / k)
+
+
+def test_waypoint_is_the_goal_where_no_path_is_known():
+    """In the generalist's bank only the maze's goal cells have a BFS table: for any other goal
+    the waypoint is the goal itself, and in the goal's own cell too."""
+    env, params, waypoint = make("RobotNav-v0")
+    bank = jax.device_get(params.bank)
+    layout = 0
+    goal_cells = set(bank.goal_index[layout].tolist())
+    others = [i for i in range(int(bank.num_free[layout])) if i not in goal_cells][:8]
+    goal = bank.free_xy[layout, others[::-1]]  # goals that are no goal cell
+    pose = np.concatenate([bank.free_xy[layout, others], np.zeros((len(others), 1))], 1)
+    lay = jnp.zeros(len(others), jnp.int32)
+    wp = waypoint(jnp.asarray(pose, jnp.float32), jnp.asarray(goal), lay, params)
+    np.testing.assert_array_equal(np.asarray(wp), goal)
+    # a known goal, from a point of its own cell other than the goal: the goal
+    g = bank.free_xy[layout, bank.goal_index[layout, 0]]
+    near = jnp.asarray([[g[0] + 0.1, g[1] - 0.1, 1.0]], jnp.float32)
+    wp = waypoint(near, jnp.asarray(g[None]), lay[:1], params)
+    np.testing.assert_array_equal(np.asarray(wp)[0], g)
+
+
+# ------------------------------------------------------------------------ observation
+def waypoint_values(env, params, pose, goal, layout) -> np.ndarray:
+    """The frame's waypoint values by their formula: (sin, cos) of the waypoint's bearing
+    relative to the heading, its distance / laser_range clipped at 1."""
+    wp = np.asarray(env.waypoint(pose, goal, layout, params), np.float64)
+    offset = wp - np.asarray(pose[:2], np.float64)
+    angle = math.atan2(offset[1], offset[0]) - float(pose[2])
+    distance = min(np.linalg.norm(offset) / env.config.laser_range, 1.0)
+    return np.array([math.sin(angle), math.cos(angle), distance])
+
+
+@pytest.mark.parametrize(
+    "env_id, overrides, frame",
+    [
+        ("RobotNav-v0", (), 32 + 1 + 2 + 3),  # lasers, D, goal bearing, waypoint
+        ("RobotComplex-v0", (("waypoint_cells", 3),), 7 + 4 + 1 + 2 + 3),  # + goal, robot xy
+        # a short range: the waypoint (up to 1.5 m away) is clipped at 1
+        ("RobotComplex-v0", (("waypoint_cells", 3), ("laser_range", 0.6), ("frames", 2)), 17),
+        (
+            "RobotComplex-v0",
+            (("waypoint_cells", 1), ("obs_heading", True), ("obs_proximity", False)),
+            7 + 4 + 2 + 2 + 3,
+        ),
+    ],
+    ids=["generalist", "complex", "clipped", "heading"],
+)
+def test_frame_ends_with_the_waypoints_bearing_and_distance(env_id, overrides, frame):
+    env, params, _ = make(env_id, **dict(overrides))
+    c = env.config
+    assert env.frame_size == frame
+    assert env.observation_space(params).shape == (c.frames * frame,)
+    # the same frame less the waypoint's 3 values without it
+    plain, plain_params = jaxnav.make(
+        env_id, **{**dict(overrides), "waypoint_cells": 0, **tiny(env_id)}
+    )
+    step = jax.jit(env.step_env)
+    clipped = 0
+    for layout, start, goal in episodes(params, 6, seed=3):
+        pose = jnp.asarray([*start, 0.7], jnp.float32)
+        goal = jnp.asarray(goal, jnp.float32)
+        obs, s = env.reset_to(KEY, params, pose, goal, layout)
+        obs0, _ = plain.reset_to(KEY, plain_params, pose, goal, layout)
+        for t in range(3):  # the newest frame is the last
+            newest = np.asarray(obs).reshape(c.frames, frame)[-1]
+            want = waypoint_values(env, params, s.pose, s.goal, s.layout)
+            np.testing.assert_allclose(newest[-3:], want, atol=1e-5)
+            clipped += want[2] == 1.0
+            if t == 0:
+                np.testing.assert_array_equal(newest[:-3], np.asarray(obs0)[: frame - 3])
+            obs, s, *_ = step(KEY, s, jnp.int32(LEFT if t else FORWARD), params)
+    assert np.isfinite(np.asarray(obs)).all() and (np.abs(np.asarray(obs)) <= 1).all()
+    assert (clipped > 0) == (c.laser_range < c.waypoint_cells * params.bank.cell_size)
+
+
+@pytest.mark.parametrize("env_id", ["RobotSimple-v0", "RobotComplex-v0"])
+def test_waypoint_cells_zero_leaves_observations_bit_for_bit_unchanged(env_id):
+    default, params = jaxnav.make(env_id, backend="kinematic")
+    off, off_params = jaxnav.make(env_id, backend="kinematic", waypoint_cells=0)
+    assert default.config.waypoint_cells == 0 and off.frame_size == default.frame_size
+    pose, goal = jnp.array([1.25, 0.75, 0.4]), jnp.array([8.25, 8.75])
+    a, sa = default.reset_to(KEY, params, pose, goal)
+    b, sb = off.reset_to(KEY, off_params, pose, goal)
+    np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    for t in range(6):
+        action = jnp.int32((FORWARD, LEFT)[t % 2])
+        a, sa, ra, *_ = default.step_env(KEY, sa, action, params)
+        b, sb, rb, *_ = off.step_env(KEY, sb, action, off_params)
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+        assert float(ra) == float(rb)
+
+
+@pytest.mark.parametrize("bad", [-1, 65, 1.5, True, "2"])
+def test_out_of_range_waypoint_cells_are_refused(bad):
+    with pytest.raises(ValueError, match=r"^waypoint_cells=.*integer in \[0, 64\]"):
+        env_config("RobotComplex-v0", waypoint_cells=bad)
+    with pytest.raises(ValueError, match="waypoint_cells="):
+        jaxnav.make("RobotNav-v0", num_layouts=2, waypoint_cells=bad)
+
+
+def test_waypoint_cells_range_ends_are_accepted():
+    assert env_config("RobotComplex-v0", waypoint_cells=64).waypoint_cells == 64
+    assert env_config("RobotNav-v0", waypoint_cells=0).waypoint_cells == 0
+
+
+def test_generalist_settings_reach_the_env():
+    """RobotNav-v0's planner hint, lidar, turn rate and reward as its params and config carry
+    them, and the sensors a policy of it needs elsewhere include the waypoint."""
+    env, params, _ = make("RobotNav-v0")
+    c = env.config
+    assert (c.waypoint_cells, c.laser_range, c.turn_speed) == (2, 3.5, 2.0)
+    assert params.max_steps_in_episode == 500 and params.collision_reward == -10.0
+    assert (params.step_reward_start, params.step_reward_end) == (-0.1, -0.2)
+    assert GENERALIST_SENSORS["waypoint_cells"] == GENERALIST["waypoint_cells"] == 2
+    # a turn is 0.2 rad
+    start = jnp.append(params.bank.free_xy[0, 1], 0.0)
+    _, s = env.reset_to(KEY, params, start, params.bank.free_xy[0, 0])
+    _, s1, *_ = env.step_env(KEY, s, jnp.int32(LEFT), params)
+    assert float(s1.pose[2]) == pytest.approx(0.2, abs=1e-6)
