@@ -173,11 +173,17 @@ class _DefaultsShown(argparse.ArgumentDefaultsHelpFormatter):
 def train_parser() -> argparse.ArgumentParser:
     p = _Parser(
         prog="python -m jaxnav.train",
-        description="Train a (dueling, double) DQN; all seeds and the whole run are one program.",
+        description="Train a (dueling, double) DQN or a PQN; all seeds and the whole run are one "
+        "program.",
         formatter_class=_DefaultsShown,
     )
     defaults = TrainConfig()
-    env_defaults = {"robot envs": train_defaults("RobotSimple-v0")}
+    env_defaults = {
+        "robot envs": train_defaults("RobotSimple-v0"),
+        "--algo pqn": train_defaults("GridMaze-v0", "pqn"),
+        "--algo pqn on robot envs": train_defaults("RobotSimple-v0", "pqn"),
+        "--algo pqn on RobotNav-v0": train_defaults("RobotNav-v0", "pqn"),
+    }
     for f in dataclasses.fields(TrainConfig):
         if f.name == "env_kwargs":
             continue

@@ -167,7 +167,9 @@ def summarize(episodes: dict[str, jax.Array]) -> dict[str, float | None]:
     shortest = ep["shortest_path"].astype(float)
     has_path = success & (shortest > 0)
     travelled = ep.get("path_length", ep["steps"]).astype(float)
-    per_maze, counts = maze_success(ep) if "layout" in ep else (np.array([success.mean()]), [1])
+    per_maze, counts = (
+        maze_success(ep) if "layout" in ep else (np.array([success.mean()]), [success.shape[0]])
+    )
     out: dict[str, float | None] = {
         "episodes": float(success.shape[0]),
         "success_rate": float(success.mean()),
