@@ -128,6 +128,22 @@ def run_sharded(trainer: Trainer, keys: jax.Array, num_logs: int | None = None):
     return state, {k: np.concatenate([c[k] for c in chunks], axis=1) for k in chunks[0]}
 
 
+def assert_learned_the_maze(trainer: Trainer, params, metrics, min_success: float) -> None:
+    """The greedy policy of ``params`` reaches the goal in at least ``min_success`` of 500 test
+    episodes on near-shortest paths, the random agent rarely does, and the training curve
+    rose."""
+    from jaxnav.evaluate import evaluate, random_policy
+
+    env, env_params = trainer.env, trainer.env_params
+    key = jax.random.key(99)
+    trained = evaluate(env, env_params, trainer.greedy_policy(params), key, 500)
+    rand = evaluate(env, env_params, random_policy(env.num_actions), key, 500)
+    assert trained["success_rate"] >= min_success, trained
+    assert trained["mean_path_ratio"] <= 1.2, trained
+    assert rand["success_rate"] <= 0.3, rand
+    assert metrics["success_rate"][-1] > metrics["success_rate"][0] + 0.3
+
+
 def random_rollout(step, env, params, key: jax.Array, num_envs: int, steps: int):
     """Per-step outputs of the batched ``step(keys, states, actions, params)``
     (``vmap(env.step)`` or ``env.step_batch``) over ``steps`` steps of uniformly random

@@ -4,10 +4,9 @@ from __future__ import annotations
 
 import jax
 import pytest
-from conftest import run_sharded
+from conftest import assert_learned_the_maze, run_sharded
 
 from jaxnav.config import TrainConfig
-from jaxnav.evaluate import evaluate, random_policy
 from jaxnav.train import Trainer
 
 
@@ -34,12 +33,4 @@ def test_dueling_double_dqn_learns_a_small_maze(devices):
     else:
         state, metrics = run_sharded(trainer, jax.random.key(0)[None])
         state, metrics = jax.tree.map(lambda x: x[0], (jax.device_get(state), metrics))
-    env, params = trainer.env, trainer.env_params
-    key = jax.random.key(99)
-    trained = evaluate(env, params, trainer.greedy_policy(state.params), key, 500)
-    rand = evaluate(env, params, random_policy(env.num_actions), key, 500)
-    assert trained["success_rate"] >= 0.9, trained
-    assert trained["mean_path_ratio"] <= 1.2, trained
-    assert rand["success_rate"] <= 0.3, rand
-    # training curves go the right way
-    assert metrics["success_rate"][-1] > metrics["success_rate"][0] + 0.3
+    assert_learned_the_maze(trainer, state.params, metrics, 0.9)

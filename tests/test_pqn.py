@@ -10,14 +10,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from conftest import TINY_TRAIN
+from conftest import TINY_TRAIN, assert_learned_the_maze
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from jaxnav.agents import dqn, pqn
 from jaxnav.cli import train_main
 from jaxnav.config import TrainConfig
-from jaxnav.evaluate import evaluate, random_policy
 from jaxnav.train import Trainer
 
 # TINY_TRAIN as PQN: 4 envs x 2 steps per rollout, 2 minibatches of 4 transitions, 2 epochs
@@ -264,11 +263,4 @@ def test_pqn_learns_a_small_maze():
     )
     trainer = Trainer(config)
     state, metrics = jax.jit(trainer.train)(jax.random.key(0))
-    env, params = trainer.env, trainer.env_params
-    key = jax.random.key(99)
-    trained = evaluate(env, params, trainer.greedy_policy(state.params), key, 500)
-    rand = evaluate(env, params, random_policy(env.num_actions), key, 500)
-    assert trained["success_rate"] >= 0.95, trained
-    assert trained["mean_path_ratio"] <= 1.2, trained
-    assert rand["success_rate"] <= 0.3, rand
-    assert metrics["success_rate"][-1] > metrics["success_rate"][0] + 0.3
+    assert_learned_the_maze(trainer, state.params, metrics, 0.95)
