@@ -75,12 +75,12 @@ class GridMazeConfig:
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming the first bad field."""
-        _check_int(self, "size", 2, 255)
-        _check_int(self, "layout_seed", 0, 2**32 - 1)
-        _check_int(self, "num_layouts", 1, 1_000_000)
-        _check_int(self, "goals_per_layout", 1, 1_000_000)
-        _check_int(self, "sensor_radius", 1, 64)
-        _check_int(self, "max_steps", 1, 1_000_000)
+        check_int(self, "size", 2, 255)
+        check_int(self, "layout_seed", 0, 2**32 - 1)
+        check_int(self, "num_layouts", 1, 1_000_000)
+        check_int(self, "goals_per_layout", 1, 1_000_000)
+        check_int(self, "sensor_radius", 1, 64)
+        check_int(self, "max_steps", 1, 1_000_000)
         if not isinstance(self.random_layouts, bool):
             raise ValueError(f"random_layouts={self.random_layouts!r}: must be true or false")
         if self.obs_mode not in OBS_MODES:
@@ -122,7 +122,7 @@ def _is_number(v: Any) -> bool:
     return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
 
 
-def _check_int(cfg: Any, name: str, lo: int, hi: int) -> None:
+def check_int(cfg: Any, name: str, lo: int, hi: int) -> None:
     v = getattr(cfg, name)
     if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or not lo <= v <= hi:
         raise ValueError(f"{name}={v!r}: must be an integer in [{lo}, {hi}]")
@@ -157,10 +157,10 @@ def generate_layouts(size: int, density: float, num: int, seed: int) -> np.ndarr
     order = np.argsort(rng.random((num, cells)), axis=1)
     obstacles = np.zeros((num, cells), dtype=bool)
     np.put_along_axis(obstacles, order[:, :k], True, axis=1)
-    return _fill_pockets(obstacles.reshape(num, size, size))
+    return fill_pockets(obstacles.reshape(num, size, size))
 
 
-def _fill_pockets(obstacles: np.ndarray) -> np.ndarray:
+def fill_pockets(obstacles: np.ndarray) -> np.ndarray:
     num, h, w = obstacles.shape
     free = ~obstacles
     label = np.where(free, np.arange(1, h * w + 1).reshape(1, h, w), 0)

@@ -18,7 +18,7 @@ Families (``FAMILIES``):
 - ``pillars``: an open hall with square pillars (1 or 2 cells) on a jittered lattice, some
   left out.
 
-Every maze goes through ``_fill_pockets``: free cells outside the largest connected region
+Every maze goes through ``fill_pockets``: free cells outside the largest connected region
 become walls, so any two free cells are joined and a random start and goal always have a path.
 A draw is redone (up to ``max_tries``) when fewer than ``MIN_FREE_FRACTION`` of the cells stay
 free or, with ``num_slots``, when its boxes do not fit the wall slots.
@@ -36,7 +36,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from jaxnav.envs.robot.mazes import Maze, _check_int, _fill_pockets, _random_segments
+from jaxnav.envs.robot.mazes import Maze, check_int, fill_pockets, random_segments
 
 FAMILIES = ("rooms", "corridors", "segments", "pillars")
 ROWS = COLS = 20  # the fine grid: 0.5 m cells over a 10 m arena
@@ -140,7 +140,7 @@ def _segments(rng: np.random.Generator, rows: int, cols: int) -> np.ndarray:
     RobotRandom look) or on the fine 0.5 m cells."""
     scale = int(rng.integers(1, 3))
     r, c = rows // scale, cols // scale
-    coarse = _random_segments(rng, r, c, round(0.2 * r * c), 4 * (3 - scale))
+    coarse = random_segments(rng, r, c, round(0.2 * r * c), 4 * (3 - scale))
     grid = np.ones((rows, cols), bool)  # cells beyond a whole number of coarse cells: walls
     grid[: r * scale, : c * scale] = np.kron(coarse, np.ones((scale, scale), bool))
     return grid
@@ -199,8 +199,8 @@ def family_maze(
     (pockets filled), with at least ``MIN_FREE_FRACTION`` of its arena free and, with
     ``num_slots``, walls that fit the slots. Depends only on the arguments."""
     families = check_families(families)
-    _check_int("seed", seed, 0)
-    _check_int("index", index, 0)
+    check_int("seed", seed, 0)
+    check_int("index", index, 0)
     family = families[index % len(families)]
     gen = GENERATORS[family]
     rng = np.random.default_rng([_TAG, seed, index])
@@ -212,7 +212,7 @@ def family_maze(
         grid = np.ones((rows, cols), bool)
         r0, c0 = int(rng.integers(rows - h + 1)), int(rng.integers(cols - w + 1))
         grid[r0 : r0 + h, c0 : c0 + w] = gen(rng, h, w)
-        grid = _fill_pockets(grid)
+        grid = fill_pockets(grid)
         if (~grid).sum() < max(2, MIN_FREE_FRACTION * h * w):
             continue
         maze = Maze(grid, cell_size, name=f"{family}[{seed}:{index}]")
@@ -234,5 +234,5 @@ def family_maze_bank(
     num_slots: int | None = None,
 ) -> list[Maze]:
     """Mazes ``0 .. num - 1`` of ``family_maze(seed, i, ...)``: the families in turn."""
-    _check_int("num", num, 1)
+    check_int("num", num, 1)
     return [family_maze(seed, i, families, rows, cols, cell_size, num_slots) for i in range(num)]

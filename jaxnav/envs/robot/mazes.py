@@ -618,12 +618,12 @@ def random_maze_bank(
     ``num_slots``, the walls do not fit the slots. Maze ``i`` depends only on (seed, i), so a
     larger bank extends a smaller one.
     """
-    _check_int("num", num, 1)
-    _check_int("rows", rows, 1)
-    _check_int("cols", cols, 1)
-    _check_int("max_segment", max_segment, 1)
-    _check_int("max_tries", max_tries, 1)
-    _check_int("seed", seed, 0)
+    check_int("num", num, 1)
+    check_int("rows", rows, 1)
+    check_int("cols", cols, 1)
+    check_int("max_segment", max_segment, 1)
+    check_int("max_tries", max_tries, 1)
+    check_int("seed", seed, 0)
     if rows * cols < 2:
         raise ValueError(f"rows={rows}, cols={cols}: a maze needs at least 2 cells")
     if not _is_number(cell_size) or not math.isfinite(cell_size) or cell_size <= 0:
@@ -637,7 +637,7 @@ def random_maze_bank(
     for i in range(num):
         rng = np.random.default_rng([seed, i])
         for _ in range(max_tries):
-            grid = _fill_pockets(_random_segments(rng, rows, cols, target, max_segment))
+            grid = fill_pockets(random_segments(rng, rows, cols, target, max_segment))
             if (~grid).sum() < 2 or grid.mean() > wall_density + 0.1:
                 continue
             maze = Maze(grid, cell_size, name=f"random[{seed}:{i}]")
@@ -653,12 +653,12 @@ def random_maze_bank(
     return mazes
 
 
-def _check_int(name: str, v: Any, lo: int) -> None:
+def check_int(name: str, v: Any, lo: int) -> None:
     if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
         raise ValueError(f"{name}={v!r}: must be an integer >= {lo}")
 
 
-def _random_segments(
+def random_segments(
     rng: np.random.Generator, rows: int, cols: int, target: int, max_segment: int
 ) -> np.ndarray:
     grid = np.zeros((rows, cols), bool)
@@ -673,7 +673,7 @@ def _random_segments(
     return grid
 
 
-def _fill_pockets(grid: np.ndarray) -> np.ndarray:
+def fill_pockets(grid: np.ndarray) -> np.ndarray:
     """Walls plus every free cell outside the largest free region."""
     if grid.all():
         return grid
@@ -735,7 +735,7 @@ def stack_mazes(mazes: Sequence[Maze], num_slots: int, num_goals: int | None = N
     if num_goals is None:
         goal_distance = _all_pairs_distances(grids)
     else:
-        _check_int("num_goals", num_goals, 1)
+        check_int("num_goals", num_goals, 1)
         goal_index = np.stack(
             [_goal_choice(m.grid, len(p), num_goals) for m, p in zip(mazes, placement, strict=True)]
         )
