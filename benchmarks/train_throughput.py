@@ -420,7 +420,7 @@ def plot(result: dict[str, Any], out: Path) -> None:
     plt.close(fig)
 
 
-class _Parser(argparse.ArgumentParser):
+class Parser(argparse.ArgumentParser):
     def error(self, message: str) -> None:  # one line, exit code 2, no usage dump
         self.exit(2, f"{self.prog}: error: {one_line(message)}\n")
 
@@ -436,7 +436,7 @@ def _ints(flag: str, text: str, p: argparse.ArgumentParser) -> list[int]:
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
-    p = _Parser(prog="python -m benchmarks.train_throughput", description=__doc__.splitlines()[0])
+    p = Parser(prog="python -m benchmarks.train_throughput", description=__doc__.splitlines()[0])
     p.add_argument("--algos", default="dqn,pqn", help=f"comma-separated of {', '.join(ALGOS)}")
     p.add_argument("--env", default="GridMaze-v0", help="registered env id")
     p.add_argument("--env-arg", type=parse_env_arg, action="append", default=[],

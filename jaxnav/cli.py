@@ -85,7 +85,7 @@ class UsageError(Exception):
     """Bad command-line input: reported as one line, exit code 2."""
 
 
-class _Parser(argparse.ArgumentParser):
+class Parser(argparse.ArgumentParser):
     def error(self, message: str) -> None:  # one line, no usage dump
         raise UsageError(one_line(message))
 
@@ -134,7 +134,7 @@ def parse_env_arg(text: str) -> tuple[str, Any]:
         return key, value  # a bare string, e.g. obs_mode=paper
 
 
-def _add_env_args(p: argparse.ArgumentParser) -> None:
+def add_env_args(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--env-arg",
         type=parse_env_arg,
@@ -171,7 +171,7 @@ class _DefaultsShown(argparse.ArgumentDefaultsHelpFormatter):
 
 
 def train_parser() -> argparse.ArgumentParser:
-    p = _Parser(
+    p = Parser(
         prog="python -m jaxnav.train",
         description="Train a (dueling, double) DQN or a PQN; all seeds and the whole run are one "
         "program.",
@@ -203,7 +203,7 @@ def train_parser() -> argparse.ArgumentParser:
         # None = not given: the env's tuned default (TrainConfig.for_env) fills it in
         help_text = f"{HELP[f.name]} ({shown})" if f.name in HELP else f"({shown})"
         p.add_argument(flag, type=kind, default=None, metavar=meta, help=help_text)
-    _add_env_args(p)
+    add_env_args(p)
     p.add_argument("--out", type=Path, help="run directory (default: runs/<env>-<time>)")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     p.add_argument(
@@ -336,7 +336,7 @@ def enable_compilation_cache() -> None:
         jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
 
 
-def _fail(prog: str, message: str) -> int:
+def fail(prog: str, message: str) -> int:
     print(f"{prog}: error: {one_line(message)}", file=sys.stderr)
     return 2
 
@@ -500,7 +500,7 @@ def train_main(argv: Sequence[str] | None = None) -> int:
     try:
         args, config, out, partial, trainer = prepare_training(argv)
     except (UsageError, ValueError) as e:
-        return _fail(prog, str(e))
+        return fail(prog, str(e))
     progress = Progress(config, args.quiet or not is_primary())
 
     enable_compilation_cache()
@@ -541,7 +541,7 @@ def train_main(argv: Sequence[str] | None = None) -> int:
             print(f"{prog}: diverged: {e}", file=sys.stderr)
             return EXIT_DIVERGED
         except ValueError as e:  # a checkpoint that does not restore
-            return _fail(prog, str(e))
+            return fail(prog, str(e))
         # a signal from here on is let be: the trained run is complete in seconds
         params = sharding.to_host(state.params)
         if is_primary():
@@ -717,14 +717,14 @@ def print_seed_statistics(stats: dict[str, dict[str, Any]]) -> None:
 
 
 def evaluate_parser() -> argparse.ArgumentParser:
-    p = _Parser(
+    p = Parser(
         prog="python -m jaxnav.evaluate",
         description="Evaluate a trained run (greedy) or the random agent on fresh episodes.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     p.add_argument("run", type=Path, help="run directory written by jaxnav.train")
     p.add_argument("--env", help="evaluate on another env id (generalization); default: the run's")
-    _add_env_args(p)
+    add_env_args(p)
     p.add_argument("--episodes", type=int, default=1000)
     p.add_argument("--seed", type=int, default=0, help="seed of the test episodes")
     p.add_argument("--policy", choices=("trained", "random"), default="trained")
@@ -765,7 +765,7 @@ def evaluate_main(argv: Sequence[str] | None = None) -> int:
             raise ValueError(f"--out {out}: directory {out.parent} does not exist")
         config, trainer, params = load_run_on(args.run, env or config.env, env_kwargs)
     except (UsageError, ValueError, FileNotFoundError) as e:
-        return _fail(prog, str(e))
+        return fail(prog, str(e))
     enable_compilation_cache()
     rows = evaluate_seeds(trainer, params, args.episodes, args.seed, args.policy, per_maze=True)
     mazes = trainer.env.num_layouts(trainer.env_params)

@@ -37,12 +37,13 @@ import numpy as np
 from scipy import stats
 
 from jaxnav import run_dir
+from jaxnav.agents.dqn import AGENT_LABELS, PAPER_AGENTS
 from jaxnav.cli import (
+    Parser,
     Progress,
     UsageError,
-    _fail,
-    _Parser,
     enable_compilation_cache,
+    fail,
     format_interval,
     format_value,
     load_run_on,
@@ -63,12 +64,9 @@ from jaxnav.evaluate import (
 from jaxnav.registration import env_config, make
 from jaxnav.train import Trainer
 
-AGENTS = {  # name -> the TrainConfig fields that make the agent
-    "dueling-double": {"dueling": True, "double": True},
-    "simple": {"dueling": False, "double": False},
-}
+AGENTS = PAPER_AGENTS  # name -> the TrainConfig fields that make the agent
 RANDOM = "random"
-LABELS = {"dueling-double": "dueling double DQN", "simple": "simple DQN", RANDOM: "random agent"}
+LABELS = AGENT_LABELS
 SIZES = ("paper", "quick", "smoke")
 SUITE_SEED = 20_240  # test episodes; independent of the training seeds
 TRAJECTORY_EPISODES = 4  # recorded test episodes per suite (dueling-double, first seed)
@@ -586,7 +584,7 @@ def generalization_main(args: argparse.Namespace, command: str) -> int:
         out = args.out or Path("runs") / f"generalization-{time.strftime('%Y%m%d-%H%M%S')}"
         run_dir.check_writable(out)
     except (UsageError, ValueError, FileNotFoundError) as e:
-        return _fail(prog, str(e))
+        return fail(prog, str(e))
     enable_compilation_cache()
     results: dict[str, Any] = {
         "experiment": "generalization",
@@ -622,8 +620,8 @@ def parser() -> argparse.ArgumentParser:
     common.add_argument("--test-episodes", type=int, help="episodes per test suite")
     common.add_argument("--out", type=Path, help="results directory (default: runs/<name>-<time>)")
     common.add_argument("--quiet", action="store_true", help="no per-interval progress lines")
-    p = _Parser(prog="python -m jaxnav.experiments", description=__doc__.split("\n\n")[0])
-    sub = p.add_subparsers(dest="experiment", required=True, parser_class=_Parser)
+    p = Parser(prog="python -m jaxnav.experiments", description=__doc__.split("\n\n")[0])
+    sub = p.add_subparsers(dest="experiment", required=True, parser_class=Parser)
     sub.add_parser(
         "paper-grid",
         parents=[common],
@@ -721,7 +719,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         out = args.out or Path("runs") / f"{args.experiment}-{time.strftime('%Y%m%d-%H%M%S')}"
         run_dir.check_writable(out)
     except (UsageError, ValueError) as e:
-        return _fail(prog, str(e))
+        return fail(prog, str(e))
     enable_compilation_cache()
     seeds = [args.seed + i for i in range(args.seeds)]
     command = "python -m jaxnav.experiments " + " ".join(
@@ -739,7 +737,7 @@ def _replot(directory: Path) -> int:
         with np.load(directory / "episodes.npz") as f:
             arrays = dict(f)
     except (OSError, ValueError, KeyError) as e:
-        return _fail("jaxnav.experiments", f"{directory}: not a results directory ({e})")
+        return fail("jaxnav.experiments", f"{directory}: not a results directory ({e})")
     plots.draw_all(directory, results, arrays)
     print(f"figures redrawn in {directory}")
     return 0

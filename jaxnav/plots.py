@@ -26,7 +26,7 @@ import numpy as np  # noqa: E402
 from scipy import stats  # noqa: E402
 
 from jaxnav import render  # noqa: E402
-from jaxnav.experiments import LABELS  # noqa: E402
+from jaxnav.agents.dqn import AGENT_LABELS as LABELS  # noqa: E402
 
 COLORS = {"dueling-double": "tab:blue", "simple": "tab:orange", "random": "tab:gray"}
 CURVES = (

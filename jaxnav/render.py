@@ -26,7 +26,7 @@ import numpy as np
 
 from jaxnav import run_dir
 from jaxnav.agents import dqn
-from jaxnav.cli import UsageError, _add_env_args, _fail, _Parser, enable_compilation_cache
+from jaxnav.cli import Parser, UsageError, add_env_args, enable_compilation_cache, fail
 from jaxnav.environment import Environment, EnvParams
 from jaxnav.evaluate import Policy, play, random_policy
 
@@ -226,7 +226,7 @@ def save_gif(
 
 # ---------------------------------------------------------------------------- command line
 def parser() -> argparse.ArgumentParser:
-    p = _Parser(
+    p = Parser(
         prog="python -m jaxnav.render",
         description="Draw episodes of a trained run: an animated GIF or a PNG of the paths.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
@@ -238,7 +238,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--run-seed", type=int, help="which trained seed (default: the run's first)")
     p.add_argument("--policy", choices=("trained", "random"), default="trained")
     p.add_argument("--env", help="draw on another env id; default: the run's")
-    _add_env_args(p)
+    add_env_args(p)
     p.add_argument("--fps", type=int, default=10)
     return p
 
@@ -276,7 +276,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         else:
             env_trainer = trainer
     except (UsageError, ValueError, FileNotFoundError) as e:
-        return _fail(prog, str(e))
+        return fail(prog, str(e))
     enable_compilation_cache()
     env, env_params = env_trainer.env, env_trainer.env_params
     if args.policy == "random":

@@ -55,6 +55,17 @@ def check_input_fits(env_id: str, have: InputSpec, want: InputSpec) -> None:
 
 
 COMPUTE_DTYPES = ("float32", "bfloat16")
+# the paper's two agents (Sec. IV) as QNetwork / loss flags, and how tables and figures name
+# them and the random agent
+PAPER_AGENTS = {
+    "dueling-double": {"dueling": True, "double": True},
+    "simple": {"dueling": False, "double": False},
+}
+AGENT_LABELS = {
+    "dueling-double": "dueling double DQN",
+    "simple": "simple DQN",
+    "random": "random agent",
+}
 
 
 class QNetwork(nn.Module):

@@ -484,10 +484,3 @@ def make_train(config: TrainConfig) -> Callable[..., tuple[TrainState, dict]]:
     (``Trainer.run``), so the compiled program can be stored in JAX's persistent cache."""
     return Trainer(config).train
 
-
-if __name__ == "__main__":
-    import sys
-
-    from jaxnav.cli import train_main
-
-    sys.exit(train_main())

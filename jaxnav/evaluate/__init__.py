@@ -289,10 +289,3 @@ def seed_statistics(values: Sequence[float | None]) -> dict[str, Any]:
         "iqm_ci95": None if iqm_ci is None else list(iqm_ci),
     }
 
-
-if __name__ == "__main__":
-    import sys
-
-    from jaxnav.cli import evaluate_main
-
-    sys.exit(evaluate_main())
