@@ -118,6 +118,21 @@ ROWS: list[tuple[str, dict[str, Any], dict[str, Any]]] = [
             "log_interval": 8_000_000,
         },
     ),
+    (
+        "RobotNav-v0 + clearance reward -1 within 0.25 m",
+        {**BEFORE, **LEVERS, "waypoint_cells": 2, "clearance_reward": -1.0},
+        {**DEEP, **STEPS, "gamma": 0.99},
+    ),
+    (
+        "RobotNav-v0 + clearance reward -3 within 0.25 m",
+        {**BEFORE, **LEVERS, "waypoint_cells": 2, "clearance_reward": -3.0},
+        {**DEEP, **STEPS, "gamma": 0.99},
+    ),
+    (
+        "RobotNav-v0 + clearance reward -1 within 0.5 m",
+        {**BEFORE, **LEVERS, "waypoint_cells": 2, "clearance_reward": -1.0, "clearance": 0.5},
+        {**DEEP, **STEPS, "gamma": 0.99},
+    ),
 ]
 TEST_KEY = 1234
 

@@ -137,6 +137,33 @@ def test_progress_reward_follows_the_geodesic_distance(simple):
     assert float(info["reward_progress"]) == pytest.approx(-c.progress_reward * maze.cell_size)
 
 
+def test_clearance_reward_grows_as_a_wall_comes_near_and_is_off_by_default(simple):
+    """``clearance_reward`` pays per step in proportion to how far inside ``clearance`` metres
+    of free space a wall is (nearest laser less the radius), logged as ``reward_clearance``;
+    the default 0 pays nothing."""
+    env, params, _, step_env = simple
+    c = env.config
+    near = params.replace(clearance_reward=-2.0, clearance=0.5)
+    # turning in place 0.3 m from the arena's left edge, facing it: under 0.3 m of free space
+    _, s = start(env, params, 0.3, 1.5, math.pi)
+    _, s_next, _, _, info = step_env(KEY, s, LEFT, params)
+    assert float(info["reward_clearance"]) == 0.0
+    _, s_next, r, _, info = step_env(KEY, s, LEFT, near)
+    gap = float(env.lasers(s_next.pose, s_next.layout, near).min()) - c.radius
+    assert 0.14 < gap < 0.3
+    assert float(info["reward_clearance"]) == pytest.approx(-2.0 * (1.0 - gap / 0.5), abs=1e-5)
+    assert float(r) == pytest.approx(terms(info))
+    # in the open the term is 0
+    _, s = start(env, params, 1.5, 1.5, 0.0)
+    _, _, _, _, info = step_env(KEY, s, LEFT, near)
+    assert float(info["reward_clearance"]) == 0.0
+    for bad in (float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="clearance_reward"):
+            jaxnav.make("RobotSimple-v0", backend="kinematic", clearance_reward=bad)
+    with pytest.raises(ValueError, match="clearance"):
+        jaxnav.make("RobotSimple-v0", backend="kinematic", clearance=0.0)
+
+
 def test_frames_stack_oldest_first_and_lasers_normalized(simple):
     env, params, _, step_env = simple
     obs, s = start(env, params, 2.5, 1.5, 0.0)
