@@ -38,15 +38,18 @@ around, one straight ahead) and ``laser_range`` (metres, also the normalizer) ch
 Generalist (``RobotNav-v0``, ``GENERALIST``): ``maze="families"``, a bank of 2,048 mazes from
 ``generators.py`` (rooms with doors, depth-first corridors 0.5 or 1 m wide, random wall
 segments, pillar halls, some on a smaller sub-arena; 20 x 20 cells of 0.5 m, seed
-``maze_seed``), on the ``kinematic`` backend, with 32 lasers all around (360 degrees),
-``obs_absolute=False`` (frame: 32 lasers, D, bearing; 4 frames, 140 inputs), 40 wall slots
-(the families need at most 39 boxes; mazes that need more are redrawn) and ``max_steps`` 400
-(the longest geodesic start-goal path of 256 resets was 34.5 m, ~140 forward steps). The
-geodesic table keeps ``num_goal_cells`` = 32 goal cells per maze: int16[2048, 32, 20, 20] is
-50 MiB (the full all-pairs table would be 1.25 GiB and 819,200 BFS runs to build); resets draw
-goals from those cells only, so each maze still offers 32 goals x every start. Build time on
-2 CPU cores: about 9 s. ``GENERALIST_SENSORS`` gives the observation's fields to run its policy
-on a maze file (``RobotMaze-v0``, ``maze_file=...``, with ``num_wall_slots`` the maze needs).
+``maze_seed``), on the ``kinematic`` backend, with 32 lasers all around (360 degrees) read to
+3.5 m, ``obs_absolute=False`` and a waypoint 2 cells ahead on a shortest path (frame: 32
+lasers, D, bearing, waypoint bearing and distance; 4 frames, 152 inputs), turns of 0.2 rad a
+step, -10 for a collision, -0.1..-0.2 a step, 40 wall slots (the families need at most 39
+boxes; mazes that need more are redrawn) and ``max_steps`` 500 (the longest geodesic
+start-goal path of 256 resets was 34.5 m, ~140 forward steps). Each setting's effect is in
+``benchmarks/results/generalist_sweep_h100.md``. The geodesic table keeps ``num_goal_cells`` =
+32 goal cells per maze: int16[2048, 32, 20, 20] is 50 MiB (the full all-pairs table would be
+1.25 GiB and 819,200 BFS runs to build); resets draw goals from those cells only, so each maze
+still offers 32 goals x every start. ``GENERALIST_SENSORS`` gives the observation's fields to
+run its policy on a maze file (``RobotMaze-v0``, ``maze_file=...``, with ``num_wall_slots`` the
+maze needs).
 
 Backends: ``mjx`` (the default) steps the robot with MuJoCo MJX (``mjx_backend.py``: a sphere
 on slide/slide/hinge joints with velocity actuators, per-env walls in the model's geom fields),
