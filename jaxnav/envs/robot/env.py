@@ -541,7 +541,9 @@ class RobotNav(Environment[RobotState, RobotParams]):
         bank with K goal cells per maze, a goal that is none of them)."""
         bank = params.bank
         row, col = self._cell(pose[:2], bank)
-        steps = self._steps_to_goal(goal, layout, bank)[row, col]
+        source, known = self._goal_source(goal, layout, bank)
+        # one element, not the goal's whole plane: this runs twice every step
+        steps = jnp.where(known, bank.goal_distance[layout, source, row, col], -1)
         return jnp.where(steps >= 0, steps * bank.cell_size, -1.0)
 
     @staticmethod
@@ -552,16 +554,23 @@ class RobotNav(Environment[RobotState, RobotParams]):
         row = rows - 1 - jnp.clip(jnp.floor(xy[1] / bank.cell_size), 0, rows - 1)
         return row.astype(jnp.int32), col
 
-    def _steps_to_goal(self, goal: jax.Array, layout: jax.Array, bank: mazes.MazeBank) -> jax.Array:
-        """int[rows, cols] BFS steps from every cell to the goal's cell; -1 where unknown."""
+    def _goal_source(
+        self, goal: jax.Array, layout: jax.Array, bank: mazes.MazeBank
+    ) -> tuple[jax.Array, jax.Array]:
+        """``(source, known)``: the goal's row of the bank's geodesic table, and whether the
+        table has one (with K goal cells per maze, a goal that is none of them has none)."""
         cols = bank.grid.shape[2]
         goal_row, goal_col = self._cell(goal, bank)
-        source = goal_row * cols + goal_col
+        cell = goal_row * cols + goal_col
         if bank.goal_source is None:
-            return bank.goal_distance[layout, source]
-        source = bank.goal_source[layout, source]
-        steps = bank.goal_distance[layout, jnp.maximum(source, 0)]
-        return jnp.where(source >= 0, steps, -1)
+            return cell, jnp.ones((), bool)
+        source = bank.goal_source[layout, cell]
+        return jnp.maximum(source, 0), source >= 0
+
+    def _steps_to_goal(self, goal: jax.Array, layout: jax.Array, bank: mazes.MazeBank) -> jax.Array:
+        """int[rows, cols] BFS steps from every cell to the goal's cell; -1 where unknown."""
+        source, known = self._goal_source(goal, layout, bank)
+        return jnp.where(known, bank.goal_distance[layout, source], -1)
 
     def waypoint(
         self, pose: jax.Array, goal: jax.Array, layout: jax.Array, params: RobotParams
@@ -570,12 +579,12 @@ class RobotNav(Environment[RobotState, RobotParams]):
         the goal (descending the BFS distances, 4-neighbour steps): a cell centre, or the goal
         itself once the path reaches the goal's cell or where no path is known."""
         bank = params.bank
-        rows, cols = bank.grid.shape[1:]
+        rows = bank.grid.shape[1]
         steps = self._steps_to_goal(goal, layout, bank)
         far = jnp.iinfo(jnp.int32).max  # walls, unknown cells and the arena's outside
         known = jnp.where(steps >= 0, steps.astype(jnp.int32), far)
         padded = jnp.pad(known, 1, constant_values=far)
-        row, col = self._cell(pose[:2], bank)
+        start = row, col = self._cell(pose[:2], bank)
         for _ in range(self.config.waypoint_cells):  # a few static steps
             # the neighbours up, down, left, right (padding stands for the arena's outside)
             around = jnp.stack(
@@ -587,7 +596,7 @@ class RobotNav(Environment[RobotState, RobotParams]):
             row = jnp.where(better, row + jnp.array([-1, 1, 0, 0])[best], row)
             col = jnp.where(better, col + jnp.array([0, 0, -1, 1])[best], col)
         centre = jnp.stack([(col + 0.5), (rows - 0.5 - row)]).astype(jnp.float32) * bank.cell_size
-        use_goal = (known[row, col] == 0) | (steps[self._cell(pose[:2], bank)] < 0)
+        use_goal = (known[row, col] == 0) | (steps[start] < 0)
         return jnp.where(use_goal, goal, centre)
 
     def lasers(self, pose: jax.Array, layout: jax.Array, params: RobotParams) -> jax.Array:
