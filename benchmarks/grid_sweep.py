@@ -22,8 +22,9 @@ import jax
 import numpy as np
 
 from benchmarks.common import machine_info, write_results
+from jaxnav.cli import format_value
 from jaxnav.config import TrainConfig
-from jaxnav.evaluate import evaluate_seeds
+from jaxnav.evaluate import evaluate_seeds, mean_of
 from jaxnav.train import Trainer
 
 
@@ -49,7 +50,8 @@ def run_variant(overrides: dict, seeds: int, eval_episodes: int, base: dict) -> 
         "per_seed": per_seed,
         "success_mean": float(np.mean([s["success_rate"] for s in per_seed])),
         "success_min": float(np.min([s["success_rate"] for s in per_seed])),
-        "path_ratio_mean": float(np.mean([s["mean_path_ratio"] for s in per_seed])),
+        # None (n/a) where no seed had a successful episode to measure it on
+        "path_ratio_mean": mean_of(per_seed)["mean_path_ratio"],
         "train_success_curve": curve,
     }
 
@@ -75,7 +77,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
         rows.append(r)
         lines.append(
             f"| {name} | {r['success_mean']:.3f} | {r['success_min']:.3f} | "
-            f"{r['path_ratio_mean']:.3f} | {r['compile_s']:.1f} | {r['train_s']:.1f} |"
+            f"{format_value(r['path_ratio_mean'])} | {r['compile_s']:.1f} | {r['train_s']:.1f} |"
         )
         print(lines[-1], flush=True)
     meta = {"machine": machine_info(), "base": base, "seeds": args.seeds}

@@ -170,6 +170,7 @@ def summarize(episodes: dict[str, jax.Array]) -> dict[str, float | None]:
     per_maze, counts = (
         maze_success(ep) if "layout" in ep else (np.array([success.mean()]), [success.shape[0]])
     )
+    played = np.asarray(counts)[np.asarray(counts) > 0]  # episodes of each maze played
     out: dict[str, float | None] = {
         "episodes": float(success.shape[0]),
         "success_rate": float(success.mean()),
@@ -180,11 +181,9 @@ def summarize(episodes: dict[str, jax.Array]) -> dict[str, float | None]:
         "mean_path_ratio": (
             float((travelled[has_path] / shortest[has_path]).mean()) if has_path.any() else None
         ),
-        "mazes": float(np.count_nonzero(np.asarray(counts))),
+        "mazes": float(len(played)),
         "worst10_success": (
-            worst_fraction_mean(per_maze, 0.1)
-            if np.min(np.asarray(counts)[np.asarray(counts) > 0]) >= MIN_EPISODES_PER_MAZE
-            else None
+            worst_fraction_mean(per_maze, 0.1) if played.min() >= MIN_EPISODES_PER_MAZE else None
         ),
     }
     return out
