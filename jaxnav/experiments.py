@@ -39,6 +39,7 @@ from scipy import stats
 from jaxnav import run_dir
 from jaxnav.agents.dqn import AGENT_LABELS, PAPER_AGENTS
 from jaxnav.cli import (
+    SEED_STATISTICS,
     Parser,
     Progress,
     UsageError,
@@ -434,7 +435,8 @@ GENERALIZATION_METRICS = (
 @dataclasses.dataclass(frozen=True)
 class Family:
     """Mazes to test on: ``env`` (``OWN``: the run's env and all its overrides; another id:
-    the run's overrides less ``MAZE_KEYS``) with ``env_kwargs`` on top."""
+    every setting of the run's env that differs from that id's, less ``MAZE_KEYS``) with
+    ``env_kwargs`` on top."""
 
     name: str
     env: str
@@ -528,7 +530,7 @@ def evaluate_family(
         means = mean_of([{k: v for k, v in r.items() if k != "run"} for r in rows])
         out["mean"] = {m: means[m] for m in GENERALIZATION_METRICS}
         out["over_seeds"] = {
-            m: seed_statistics([r[m] for r in rows]) for m in ("success_rate", "worst10_success")
+            m: seed_statistics([r[m] for r in rows]) for m in SEED_STATISTICS
         }
     out["per_seed"] = rows
     return out
