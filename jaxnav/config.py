@@ -9,13 +9,13 @@ from typing import Any
 import jax
 
 from jaxnav.agents.dqn import COMPUTE_DTYPES
-from jaxnav.presets import train_defaults
+from jaxnav.presets import PRESETS, train_defaults
 from jaxnav.registration import env_config
 from jaxnav.sharding import mesh_shape
 
 # step counters are int32 inside the compiled loop; keep a margin below 2^31
 MAX_STEPS = 2_000_000_000
-ALGOS = ("dqn", "pqn")
+ALGOS = tuple(PRESETS)  # "dqn", "pqn": an algorithm is what has presets
 
 
 @dataclasses.dataclass(frozen=True)
