@@ -8,7 +8,7 @@ the random agent on the same fixed test episodes, write a results directory with
 
 Agents: ``dueling-double`` (the paper's model) and ``simple`` (plain DQN: dueling and double
 off), each trained on all seeds at once (``vmap`` over seeds in one compiled program per agent
-and training env, called once per logging interval for progress lines: ``cli.train_seeds``),
+and training env, called once per logging interval for progress lines: ``runner.train_seeds``),
 and ``random`` (a uniform action every step). Each test suite is a fixed
 list of (start, goal, layout) drawn once from ``SUITE_SEED`` and replayed with
 ``env.reset_to``, so every agent and seed meets the same episodes.
@@ -38,31 +38,23 @@ from scipy import stats
 
 from jaxnav import run_dir
 from jaxnav.agents.dqn import AGENT_LABELS, PAPER_AGENTS
-from jaxnav.cli import (
-    SEED_STATISTICS,
-    Parser,
-    Progress,
-    UsageError,
-    enable_compilation_cache,
-    fail,
-    format_interval,
-    format_value,
-    load_run_on,
-    one_line,
-    parse_env_arg,
-    train_seeds,
-)
+from jaxnav.cli import Parser, UsageError, fail, one_line, parse_env_arg
 from jaxnav.config import TrainConfig
 from jaxnav.environment import Environment, EnvParams
 from jaxnav.evaluate import (
+    SEED_STATISTICS,
     evaluate_seeds,
+    format_interval,
+    format_value,
     mean_of,
     play,
     random_policy,
     seed_statistics,
     summarize,
 )
+from jaxnav.programs import enable_compilation_cache
 from jaxnav.registration import env_config, make
+from jaxnav.runner import Progress, train_seeds
 from jaxnav.train import Trainer
 
 AGENTS = PAPER_AGENTS  # name -> the TrainConfig fields that make the agent
@@ -264,7 +256,7 @@ def run_experiment(
     from jaxnav import plots, render  # matplotlib only once there is something to draw
 
     t_start = time.perf_counter()
-    partial = out.with_name(f".{out.name}.partial")
+    partial = run_dir.partial_dir(out)
     shutil.rmtree(partial, ignore_errors=True)
     (partial / "runs").mkdir(parents=True)
     results: dict[str, Any] = {
@@ -331,9 +323,7 @@ def run_experiment(
     results["wall_s"] = time.perf_counter() - t_start
     run_dir.write_json(partial / "results.json", results)
     (partial / "results.md").write_text(results_markdown(results))
-    if out.exists():
-        out.rmdir()  # checked empty before any work
-    partial.rename(out)
+    run_dir.complete(partial, out)
     print(f"\nwall time {results['wall_s']:.0f}s; results in {out}")
     return results
 
@@ -344,10 +334,8 @@ def _train(config: TrainConfig, path: Path, quiet: bool) -> dict[str, Any]:
     state, metrics, compile_s, train_s = train_seeds(
         trainer, run_dir.seed_keys(config), Progress(config, quiet)
     )
-    path.mkdir()
-    run_dir.write_json(path / "config.json", run_dir.config_document(config, trainer))
-    run_dir.write_metrics_csv(path / "metrics.csv", metrics, run_dir.seeds_of(config))
-    run_dir.save_params(path, state.params)
+    run_dir.create(path, trainer)
+    run_dir.write_trained(path, config, metrics, state.params)
     print(f"    compile {compile_s:.1f}s, train {train_s:.1f}s", flush=True)
     record = {
         "env": config.env,
@@ -511,7 +499,7 @@ def evaluate_family(
     for run in runs:
         try:
             env, env_kwargs = family.for_run(run_dir.load_config(run))
-            _, trainer, params = load_run_on(run, env, env_kwargs)
+            _, trainer, params = run_dir.load_run_on(run, env, env_kwargs)
         except (ValueError, FileNotFoundError) as e:
             skipped.append(f"{run}: {one_line(str(e))}")
             continue

@@ -26,9 +26,10 @@ import numpy as np
 
 from jaxnav import run_dir
 from jaxnav.agents import dqn
-from jaxnav.cli import Parser, UsageError, add_env_args, enable_compilation_cache, fail
+from jaxnav.cli import Parser, UsageError, add_env_args, fail
 from jaxnav.environment import Environment, EnvParams
 from jaxnav.evaluate import Policy, play, random_policy
+from jaxnav.programs import enable_compilation_cache
 
 OUTCOMES = ("success", "collision", "timeout")
 Episode = dict[str, np.ndarray]

@@ -1,4 +1,5 @@
-"""Vectorized evaluation of a policy over fresh episodes."""
+"""Vectorized evaluation of a policy over fresh episodes, statistics over seeds and their
+tables. ``python -m jaxnav.evaluate`` (``__main__.py``) is the command line over it."""
 
 from __future__ import annotations
 
@@ -288,3 +289,52 @@ def seed_statistics(values: Sequence[float | None]) -> dict[str, Any]:
         "iqm_ci95": None if iqm_ci is None else list(iqm_ci),
     }
 
+
+
+# ------------------------------------------------------------------------------- tables
+SEED_STATISTICS = ("success_rate", "worst10_success")  # with IQM and intervals over seeds
+EVAL_COLUMNS = (
+    "success_rate",
+    "collision_rate",
+    "timeout_rate",
+    "worst10_success",
+    "mean_return",
+    "mean_steps",
+    "mean_path_ratio",
+)
+
+
+def format_value(value: float | None, digits: int = 3) -> str:
+    """A table cell: ``n/a`` for a value not measured (None or NaN)."""
+    if value is None or value != value:
+        return "n/a"
+    return f"{value:.{digits}f}"
+
+
+def print_eval_table(env: str, rows: dict[str, dict[str, float | None]]) -> None:
+    """Means over seeds per policy; ``worst10_success`` is the mean success of the 10% of
+    mazes with the lowest success (``worst_fraction_mean``)."""
+    first = next(iter(rows.values()))
+    mazes = first.get("mazes")
+    per = f" over {mazes:.0f} mazes" if mazes is not None and mazes > 1 else ""
+    print(f"\n{env}: {first['episodes']:.0f} episodes per policy{per}")
+    print("| policy | " + " | ".join(EVAL_COLUMNS) + " |")
+    print("|---" * (len(EVAL_COLUMNS) + 1) + "|")
+    for name, r in rows.items():
+        print(f"| {name} | " + " | ".join(format_value(r.get(c)) for c in EVAL_COLUMNS) + " |")
+
+
+def format_interval(stat: dict[str, Any], key: str) -> str:
+    """``0.912 [0.880, 0.940]`` from ``seed_statistics``'s ``key`` and ``key_ci95``."""
+    ci = stat[f"{key}_ci95"]
+    tail = "" if ci is None else f" [{ci[0]:.3f}, {ci[1]:.3f}]"
+    return format_value(stat[key]) + tail
+
+
+def print_seed_statistics(stats: dict[str, dict[str, Any]]) -> None:
+    """Per metric over seeds: mean and IQM with 95% bootstrap intervals, and the seed count."""
+    for metric, st in stats.items():
+        print(
+            f"{metric} over {st['seeds']} seeds: mean {format_interval(st, 'mean')}, "
+            f"IQM {format_interval(st, 'iqm')} (95% bootstrap intervals)"
+        )
