@@ -167,11 +167,12 @@ def paper_robot(size: str, maze_file: Path, backend: str = "mjx") -> list[Study]
 def draw_suite(
     env: Environment, params: EnvParams, key: jax.Array, num: int
 ) -> dict[str, jax.Array]:
-    """``num`` (start, goal, layout) triples, drawn once like fresh resets: a robot start is a
-    pose (x, y, heading), a grid start a cell (row, col)."""
+    """``num`` (start, goal, layout) triples, drawn once like fresh resets, in the env's terms
+    (``env.reset_to_args``: e.g. a robot start is a pose (x, y, heading), a grid start a cell
+    (row, col))."""
     _, states = jax.vmap(env.reset, in_axes=(0, None))(jax.random.split(key, num), params)
-    start = states.pose if hasattr(states, "pose") else states.pos
-    return {"start": start, "goal": states.goal, "layout": states.layout}
+    start, goal, layout = jax.vmap(env.reset_to_args)(states)
+    return {"start": start, "goal": goal, "layout": layout}
 
 
 def start_suite(env: Environment, params: EnvParams, suite: dict[str, jax.Array]):
@@ -185,8 +186,7 @@ def start_suite(env: Environment, params: EnvParams, suite: dict[str, jax.Array]
 def suite_env(suite: Suite) -> tuple[Environment, EnvParams]:
     env, params = make(suite.env, **suite.env_kwargs)
     if suite.first_layout:
-        bank = jax.tree.map(lambda x: x[suite.first_layout :], params.bank)
-        params = params.replace(bank=bank)
+        params = env.layouts_from(params, suite.first_layout)
     return env, params
 
 
@@ -403,13 +403,6 @@ def print_rows(suite: str, rows: dict[str, Any]) -> None:
 # ------------------------------------------------------------------------ generalization
 HELD_OUT_MAZE_SEED = 1_000_003  # maze_seed of the held-out mazes of the run's own env
 EXAMPLE_MAZES = EXAMPLE_MAZE.parent
-# env overrides that choose the mazes: not carried from a run to another family's env (every
-# other override of the run, e.g. its sensors, observation, speed or backend, is)
-MAZE_KEYS = frozenset(
-    {"maze", "maze_file", "maze_seed", "num_layouts", "random_size", "num_wall_slots"}
-    | {"families", "num_goal_cells"}
-    | {"layout_seed", "random_layouts", "goals_per_layout", "obstacle_density", "size"}
-)
 OWN = "own"  # a family's env: the run's own env id, with all its overrides
 GENERALIZATION_METRICS = (
     "success_rate",
@@ -423,8 +416,8 @@ GENERALIZATION_METRICS = (
 @dataclasses.dataclass(frozen=True)
 class Family:
     """Mazes to test on: ``env`` (``OWN``: the run's env and all its overrides; another id:
-    every setting of the run's env that differs from that id's, less ``MAZE_KEYS``) with
-    ``env_kwargs`` on top."""
+    every setting of the run's env that differs from that id's, less the settings that choose
+    the mazes, each env config's ``MAZE_FIELDS``) with ``env_kwargs`` on top."""
 
     name: str
     env: str
@@ -435,13 +428,15 @@ class Family:
         if self.env == OWN:
             return config.env, {**config.env_kwargs, **self.env_kwargs}
         # every setting of the run's env that differs from this env's (the run id's own
-        # settings too, e.g. RobotNav-v0's sensors), less the maze-picking ones
-        trained = dataclasses.asdict(env_config(config.env, **config.env_kwargs))
-        target = dataclasses.asdict(env_config(self.env, **self.env_kwargs))
+        # settings too, e.g. RobotNav-v0's sensors, observation, speed or backend), less the
+        # maze-picking ones
+        trained_config = env_config(config.env, **config.env_kwargs)
+        target_config = env_config(self.env, **self.env_kwargs)
+        mazes = trained_config.MAZE_FIELDS | target_config.MAZE_FIELDS
+        trained = dataclasses.asdict(trained_config)
+        target = dataclasses.asdict(target_config)
         carried = {
-            k: v
-            for k, v in trained.items()
-            if k in target and k not in MAZE_KEYS and v != target[k]
+            k: v for k, v in trained.items() if k in target and k not in mazes and v != target[k]
         }
         return self.env, {**carried, **self.env_kwargs}
 

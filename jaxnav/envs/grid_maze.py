@@ -39,7 +39,7 @@ Observation modes (all encode the paper's information: robot, goal and obstacle 
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+from typing import Any, ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -59,6 +59,12 @@ UNREACHABLE = -1
 @dataclasses.dataclass(frozen=True)
 class GridMazeConfig:
     """Everything that defines a GridMaze; ``jaxnav.make(id, **overrides)`` replaces fields."""
+
+    # the fields that choose the layouts (a policy tested on other mazes keeps the rest)
+    MAZE_FIELDS: ClassVar[frozenset[str]] = frozenset(
+        {"size", "obstacle_density", "layout_seed", "random_layouts", "num_layouts"}
+        | {"goals_per_layout"}
+    )
 
     size: int = 15
     obstacle_density: float = 0.2
@@ -421,8 +427,15 @@ class GridMaze(Environment[GridMazeState, GridMazeParams]):
         )
         return self.get_obs(state, params), state
 
+    def reset_to_args(self, state: GridMazeState) -> tuple[jax.Array, jax.Array, jax.Array]:
+        """The robot's cell, the goal's cell and the layout, as ``reset_to`` takes them."""
+        return state.pos, state.goal, state.layout
+
     def num_layouts(self, params: GridMazeParams) -> int:
         return params.bank.num_layouts
+
+    def layouts_from(self, params: GridMazeParams, first: int) -> GridMazeParams:
+        return params.replace(bank=jax.tree.map(lambda x: x[first:], params.bank))
 
     def layout_index(self, state: GridMazeState) -> jax.Array:
         return state.layout
@@ -453,6 +466,27 @@ class GridMaze(Environment[GridMazeState, GridMazeParams]):
         }
         reward = r_goal + r_collision + r_step
         return self.get_obs(state, params), state, reward, at_goal | blocked, info
+
+    def scene(
+        self, params: GridMazeParams, states: GridMazeState, ranges: np.ndarray
+    ) -> dict[str, np.ndarray]:
+        """Cells of side 1 (cell (row, col) has its centre at (col + 0.5, size - row - 0.5)),
+        the obstacles as unit squares; no heading, no sensors to draw."""
+        size = self.size
+        to_xy = lambda rc: np.stack([rc[..., 1] + 0.5, size - rc[..., 0] - 0.5], -1)  # noqa: E731
+        blocked = np.argwhere(np.asarray(params.bank.obstacles[int(states.layout[0])]))
+        cells = to_xy(blocked) - 0.5
+        return {
+            "xy": to_xy(states.pos).astype(np.float32),
+            "heading": np.zeros(len(states.pos), np.float32),
+            "lasers": ranges,
+            "laser_angles": np.zeros(0, np.float32),
+            "goal": to_xy(states.goal[0]).astype(np.float32),
+            "walls": np.concatenate([cells, np.ones_like(cells)], axis=1).astype(np.float32),
+            "arena": np.array([size, size], np.float32),
+            "goal_radius": np.float32(0.4),
+            "radius": np.float32(0.3),
+        }
 
     # -- observation --------------------------------------------------------------
     def _moves_blocked(self, params: GridMazeParams, state: GridMazeState) -> jax.Array:

@@ -71,9 +71,10 @@ def play(
     bank layout), ``shortest_path`` (``env.shortest_path_length`` at the start, -1 where not
     known) and ``path_length`` (the sum of ``env.step_length`` over the episode).
 
-    Steps without auto-reset: an ended episode's state stays as it ended, so ``record=True``
-    also returns ``"states"``, the batch's states before the first step and after each one
-    (leading axis ``max_steps + 1``), the final pose included.
+    Steps without auto-reset (``env.step_no_reset``, the time limit of ``env.step``): an ended
+    episode's state stays as it ended, so ``record=True`` also returns ``"states"``, the
+    batch's states before the first step and after each one (leading axis ``max_steps + 1``),
+    the final pose included.
     """
     num_episodes = obs.shape[0]
     shortest = jax.vmap(env.shortest_path_length, in_axes=(0, None))(state, params)
@@ -90,10 +91,9 @@ def play(
         obs, state, ended, ret, steps, path, success, collision, timeout = carry
         k_pol, k_env = jax.random.split(key)
         action = policy(k_pol, obs)
-        new_obs, new_state, reward, terminated, info = jax.vmap(
-            env.step_env, in_axes=(0, 0, 0, None)
+        new_obs, new_state, reward, terminated, truncated, info = jax.vmap(
+            env.step_no_reset, in_axes=(0, 0, 0, None)
         )(jax.random.split(k_env, num_episodes), state, action, params)
-        truncated = (new_state.time >= params.max_steps_in_episode) & ~terminated
         live = ~ended
         ret = ret + jnp.where(live, reward, 0.0)
         steps = steps + live

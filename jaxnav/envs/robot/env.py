@@ -65,7 +65,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
-from typing import Any
+from typing import Any, ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -92,6 +92,12 @@ _UNREACHABLE = -1e15  # where inactive wall slots go for the collision test (squ
 @dataclasses.dataclass(frozen=True)
 class RobotConfig:
     """Everything that defines a robot env; ``jaxnav.make(id, **overrides)`` replaces fields."""
+
+    # the fields that choose the mazes (a policy tested on other mazes keeps the rest)
+    MAZE_FIELDS: ClassVar[frozenset[str]] = frozenset(
+        {"maze", "maze_file", "maze_seed", "num_layouts", "random_size", "num_wall_slots"}
+        | {"families", "num_goal_cells"}
+    )
 
     maze: str = "simple"
     maze_file: str | None = None
@@ -497,9 +503,16 @@ class RobotNav(Environment[RobotState, RobotParams]):
         reward = r_goal + r_collision + r_step + r_progress + r_clearance
         return self.get_obs(state, params), state, reward, at_goal | collided, info
 
+    def reset_to_args(self, state: RobotState) -> tuple[jax.Array, jax.Array, jax.Array]:
+        """The robot's pose, the goal and the maze, as ``reset_to`` takes them."""
+        return state.pose, state.goal, state.layout
+
     # -- evaluation hooks -----------------------------------------------------------
     def num_layouts(self, params: RobotParams) -> int:
         return params.bank.num_mazes
+
+    def layouts_from(self, params: RobotParams, first: int) -> RobotParams:
+        return params.replace(bank=jax.tree.map(lambda x: x[first:], params.bank))
 
     def layout_index(self, state: RobotState) -> jax.Array:
         return state.layout
@@ -519,6 +532,30 @@ class RobotNav(Environment[RobotState, RobotParams]):
     ) -> jax.Array:
         """Metres the robot's centre moved in the step (turns on the spot move it 0)."""
         return jnp.linalg.norm(next_state.pose[:2] - state.pose[:2])
+
+    def sensor_ranges(self, state: RobotState, params: RobotParams) -> jax.Array:
+        """The lasers' ranges in metres (``lasers``)."""
+        return self.lasers(state.pose, state.layout, params)
+
+    def scene(
+        self, params: RobotParams, states: RobotState, ranges: np.ndarray
+    ) -> dict[str, np.ndarray]:
+        """Metres; the maze's active wall boxes (the boundary's included) as rectangles."""
+        layout = int(states.layout[0])
+        walls = jax.tree.map(lambda x: np.asarray(x[layout]), params.bank.walls)
+        act = walls.active
+        corner = walls.center[act] - walls.half_size[act]
+        return {
+            "xy": states.pose[:, :2],
+            "heading": states.pose[:, 2],
+            "lasers": ranges,
+            "laser_angles": np.asarray(self.angles),
+            "goal": states.goal[0],
+            "walls": np.concatenate([corner, 2 * walls.half_size[act]], axis=1),
+            "arena": np.asarray(self.arena, np.float32),
+            "goal_radius": np.float32(params.goal_radius),
+            "radius": np.float32(self.config.radius),
+        }
 
     def _collision_boxes(
         self, params: RobotParams, layout: jax.Array
