@@ -34,7 +34,6 @@ from typing import Any
 
 import jax
 import numpy as np
-from scipy import stats
 
 from jaxnav import run_dir
 from jaxnav.agents.dqn import AGENT_LABELS, PAPER_AGENTS
@@ -51,6 +50,7 @@ from jaxnav.evaluate import (
     random_policy,
     seed_statistics,
     summarize,
+    t_interval,
 )
 from jaxnav.programs import enable_compilation_cache
 from jaxnav.registration import env_config, make
@@ -234,12 +234,8 @@ def mean_ci(values: Sequence[float | None]) -> dict[str, float | None]:
     x = np.asarray([v for v in values if v is not None], float)
     if len(x) == 0:
         return {"mean": None, "ci95": None}
-    half = (
-        float(stats.t.ppf(0.975, len(x) - 1) * x.std(ddof=1) / np.sqrt(len(x)))
-        if len(x) > 1
-        else None
-    )
-    return {"mean": float(x.mean()), "ci95": half}
+    mean, half = t_interval(x)
+    return {"mean": float(mean), "ci95": float(half) if len(x) > 1 else None}
 
 
 # -------------------------------------------------------------------------------- running

@@ -273,6 +273,17 @@ def bootstrap_ci(
     return float(lo), float(hi)
 
 
+def t_interval(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mean over axis 0 (seeds) and the half-width of its 95% t-interval (0 for one seed)."""
+    from scipy import stats  # only where an interval is drawn: it is slow to import
+
+    n = x.shape[0]
+    mean = x.mean(axis=0)
+    if n < 2:
+        return mean, np.zeros_like(mean)
+    return mean, stats.t.ppf(0.975, n - 1) * x.std(axis=0, ddof=1) / np.sqrt(n)
+
+
 def seed_statistics(values: Sequence[float | None]) -> dict[str, Any]:
     """Over seeds: ``seeds`` (values that are numbers), ``mean``, ``iqm`` and their 95%
     bootstrap intervals ``mean_ci95`` / ``iqm_ci95`` (``[lo, hi]``, None for one seed); None
