@@ -14,6 +14,7 @@ under ``jaxnav/envs/`` with its entries in ``jaxnav.registration``.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any, Generic, TypeVar
 
 import jax
@@ -33,9 +34,19 @@ class EnvState:
 
 @struct.dataclass
 class EnvParams:
-    """Fields every environment's parameters have; subclasses add their own."""
+    """Fields every environment's parameters have; subclasses add their own, each named as the
+    env config's field it comes from (``from_config``)."""
 
     max_steps_in_episode: int = 60
+
+    @classmethod
+    def from_config(cls, config: Any, **values: Any) -> Any:
+        """These params from an env config: ``max_steps_in_episode`` from ``config.max_steps``,
+        every other field from the config field of the same name, except those in ``values``
+        (e.g. a layout bank): a setting is declared once, in the config."""
+        names = [f.name for f in dataclasses.fields(cls) if f.name not in values]
+        taken = {n: getattr(config, n) for n in names if n != "max_steps_in_episode"}
+        return cls(max_steps_in_episode=config.max_steps, **taken, **values)
 
 
 # On a GPU, ``step_batch``'s compaction (index gathers and scatters) costs more than the resets

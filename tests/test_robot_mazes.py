@@ -79,6 +79,28 @@ def test_load_maze_from_file(tmp_path):
     assert m.connected(m.start, m.goal)
 
 
+def test_a_run_parses_its_maze_file_once(tmp_path, monkeypatch):
+    """Preparing a training run validates the config several times and builds the env: one
+    parse of the file; a changed file is read anew."""
+    from jaxnav.train.__main__ import prepare_training
+
+    path = tmp_path / "maze.txt"
+    path.write_text(M.SIMPLE)
+    parsed = []
+    parse = M.parse_maze
+    monkeypatch.setattr(
+        M, "parse_maze", lambda text, name, **kw: parsed.append(name) or parse(text, name, **kw)
+    )
+    flags = ["--maze-file", str(path), "--env-arg", "backend=kinematic", "--num-envs", "4"]
+    args, config, *_, trainer = prepare_training([*flags, "--out", str(tmp_path / "run")])
+    assert config.env == "RobotMaze-v0" and trainer.env.config.maze_file == str(path)
+    assert parsed == [str(path)]
+    M.load_maze(path)
+    assert parsed == [str(path)]
+    path.write_text(M.COMPLEX)  # another size
+    assert M.load_maze(path).cell_size == 0.5 and parsed == [str(path)] * 2
+
+
 def test_connectivity_helpers():
     m = M.parse_maze(".#.\n.#.\n...\n")
     assert m.connected((0, 0), (0, 2))

@@ -99,7 +99,7 @@ class GridMazeConfig:
                 f"obstacle_density={d!r}: more obstacles than a {self.size}x{self.size} grid "
                 "can hold with a free start and goal"
             )
-        for name in ("goal_reward", "collision_reward", "step_reward"):
+        for name in (f.name for f in dataclasses.fields(self) if "reward" in f.name):
             v = getattr(self, name)
             if not _is_number(v) or not np.isfinite(v):
                 raise ValueError(f"{name}={v!r}: must be a finite number")
@@ -310,13 +310,14 @@ class GridMazeState(EnvState):
     shortest_path: jax.Array  # int32 BFS length from the episode's start to the goal
 
 
-@struct.dataclass
+@struct.dataclass(kw_only=True)
 class GridMazeParams(EnvParams):
-    max_steps_in_episode: int = 60
-    goal_reward: float = 4.0
-    collision_reward: float = -1.0
-    step_reward: float = 0.0
-    bank: LayoutBank | None = None
+    """The config's rewards (``EnvParams.from_config``) and the layout bank."""
+
+    goal_reward: float
+    collision_reward: float
+    step_reward: float
+    bank: LayoutBank
 
 
 class GridMaze(Environment[GridMazeState, GridMazeParams]):
@@ -325,22 +326,15 @@ class GridMaze(Environment[GridMazeState, GridMazeParams]):
     stochastic_step = False  # moves are deterministic
 
     def __init__(self, config: GridMazeConfig | None = None, name: str = "GridMaze-v0"):
+        """``config`` as ``jaxnav.make`` validated it (or the default one)."""
         self.config = default_config() if config is None else config
-        self.config.validate()
         self.name = name
         self.size = self.config.size
         self._bank = build_bank(self.config)
 
     @property
     def default_params(self) -> GridMazeParams:
-        c = self.config
-        return GridMazeParams(
-            max_steps_in_episode=c.max_steps,
-            goal_reward=c.goal_reward,
-            collision_reward=c.collision_reward,
-            step_reward=c.step_reward,
-            bank=self._bank,
-        )
+        return GridMazeParams.from_config(self.config, bank=self._bank)
 
     @property
     def num_actions(self) -> int:

@@ -174,14 +174,7 @@ class RobotConfig:
         if not isinstance(self.obs_absolute, (bool, np.bool_)):
             raise ValueError(f"obs_absolute={self.obs_absolute!r}: must be True or False")
         generators.check_families(self.families)
-        for name in (
-            "goal_reward",
-            "collision_reward",
-            "step_reward_start",
-            "step_reward_end",
-            "progress_reward",
-            "clearance_reward",
-        ):
+        for name in (f.name for f in dataclasses.fields(self) if "reward" in f.name):
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v):
                 raise ValueError(f"{name}={v!r}: must be a finite number")
@@ -321,18 +314,19 @@ class RobotState(EnvState):
     frames: jax.Array  # float32[frames, per_frame], oldest first
 
 
-@struct.dataclass
+@struct.dataclass(kw_only=True)
 class RobotParams(EnvParams):
-    max_steps_in_episode: int = 250
-    goal_radius: float = 0.5
-    goal_reward: float = 10.0
-    collision_reward: float = -5.0
-    step_reward_start: float = -0.5
-    step_reward_end: float = -1.0
-    progress_reward: float = 0.0
-    clearance_reward: float = 0.0
-    clearance: float = 0.25
-    bank: mazes.MazeBank | None = None
+    """The config's goal radius and reward terms (``EnvParams.from_config``) and the maze bank."""
+
+    goal_radius: float
+    goal_reward: float
+    collision_reward: float
+    step_reward_start: float
+    step_reward_end: float
+    progress_reward: float
+    clearance_reward: float
+    clearance: float
+    bank: mazes.MazeBank
 
 
 class RobotNav(Environment[RobotState, RobotParams]):
@@ -344,8 +338,8 @@ class RobotNav(Environment[RobotState, RobotParams]):
     batch_reset_fraction = 1 / 16
 
     def __init__(self, config: RobotConfig | None = None, name: str = "RobotSimple-v0"):
+        """``config`` as ``jaxnav.make`` validated it (or the default one)."""
         self.config = default_config() if config is None else config
-        self.config.validate()
         self.name = name
         maze_list = self.config.load_mazes()
         # as many slots as the bank's largest maze needs (at most ``num_wall_slots``): every
@@ -373,19 +367,7 @@ class RobotNav(Environment[RobotState, RobotParams]):
 
     @property
     def default_params(self) -> RobotParams:
-        c = self.config
-        return RobotParams(
-            max_steps_in_episode=c.max_steps,
-            goal_radius=c.goal_radius,
-            goal_reward=c.goal_reward,
-            collision_reward=c.collision_reward,
-            step_reward_start=c.step_reward_start,
-            step_reward_end=c.step_reward_end,
-            progress_reward=c.progress_reward,
-            clearance_reward=c.clearance_reward,
-            clearance=c.clearance,
-            bank=self._bank,
-        )
+        return RobotParams.from_config(self.config, bank=self._bank)
 
     @property
     def num_actions(self) -> int:

@@ -42,6 +42,7 @@ import dataclasses
 import functools
 import math
 import os
+import stat
 from collections import deque
 from collections.abc import Sequence
 from typing import Any
@@ -410,8 +411,28 @@ MAX_FILE_BYTES = 1_000_000
 def load_maze(path: str | os.PathLike[str], num_slots: int | None = None) -> Maze:
     """Read a maze file (format in the module docstring); ``MazeFileError`` naming the file,
     line and column if it is unreadable or malformed, or (with ``num_slots``) if its walls do
-    not fit the slots."""
+    not fit the slots. A file read before and unchanged since (the same size and modification
+    time) is not read again: one run validates and builds its env several times."""
     name = os.fspath(path)
+    try:
+        info = os.stat(name)
+    except OSError:
+        info = None  # reading it says why
+    if info is not None and stat.S_ISREG(info.st_mode):
+        maze = _load_file(name, info.st_dev, info.st_ino, info.st_mtime_ns, info.st_size)
+    else:
+        maze = _read_maze(name)
+    if num_slots is not None:
+        check_slots(maze, num_slots)
+    return maze
+
+
+@functools.lru_cache(maxsize=64)  # mazes are immutable; a changed file has another key
+def _load_file(name: str, device: int, inode: int, mtime_ns: int, size: int) -> Maze:
+    return _read_maze(name)
+
+
+def _read_maze(name: str) -> Maze:
     try:
         with open(name, "rb") as f:
             data = f.read(MAX_FILE_BYTES + 1)  # bounded: /dev/zero is not a maze
@@ -425,7 +446,7 @@ def load_maze(path: str | os.PathLike[str], num_slots: int | None = None) -> Maz
         line = data.count(b"\n", 0, e.start) + 1
         col = e.start - (data.rfind(b"\n", 0, e.start) + 1) + 1
         raise MazeFileError(name, "not UTF-8 text", line, col) from e
-    return parse_maze(text, name=name, num_slots=num_slots)
+    return parse_maze(text, name=name)
 
 
 def parse_maze(text: str, name: str = "<string>", num_slots: int | None = None) -> Maze:
