@@ -43,7 +43,6 @@ import functools
 import math
 import os
 import stat
-from collections import deque
 from collections.abc import Sequence
 from typing import Any
 
@@ -52,7 +51,15 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from jaxnav.envs.grid_maze import bank_distances  # one BFS for both envs
+from jaxnav.envs.maze_algorithms import (
+    Cell,
+    bank_distances,
+    check_int,
+    fill_pockets,
+    is_number,
+    largest_region_cell,
+    region_labels,
+)
 
 WALL, FREE, START, GOAL = "#", ".", "S", "G"
 CELL_CHARS = (WALL, FREE, START, GOAL)
@@ -63,8 +70,6 @@ BOUNDARY_HALF_THICKNESS = 1.0
 # Parked (unused) slots: far outside any arena and tiny.
 PARKED_CENTER = (-1000.0, -1000.0)
 PARKED_HALF_SIZE = (1e-3, 1e-3)
-
-Cell = tuple[int, int]  # (row, col), row 0 at the top
 
 
 class MazeFileError(ValueError):
@@ -161,7 +166,7 @@ class Maze:
         grid.setflags(write=False)
         object.__setattr__(self, "grid", grid)
         cs = self.cell_size
-        if not _is_number(cs) or not math.isfinite(cs) or cs <= 0:
+        if not is_number(cs) or not math.isfinite(cs) or cs <= 0:
             raise ValueError(f"{self.name}: cell_size={cs!r}: must be a positive number (metres)")
         object.__setattr__(self, "cell_size", float(cs))
         for label in ("start", "goal"):
@@ -213,30 +218,10 @@ class Maze:
         """int32[F, 2] all free cells (row, col) in reading order."""
         return np.argwhere(~self.grid).astype(np.int32)
 
-    def bfs_distances(self, source: Cell) -> np.ndarray:
-        """int32[rows, cols] 4-neighbour steps from ``source``; -1 at walls and unreachable."""
-        dist = np.full(self.grid.shape, -1, np.int32)
-        r0, c0 = source
-        if self.grid[r0, c0]:
-            return dist
-        dist[r0, c0] = 0
-        queue = deque([(r0, c0)])
-        while queue:
-            r, c = queue.popleft()
-            for nr, nc in ((r - 1, c), (r + 1, c), (r, c - 1), (r, c + 1)):
-                if (
-                    0 <= nr < self.rows
-                    and 0 <= nc < self.cols
-                    and not self.grid[nr, nc]
-                    and dist[nr, nc] < 0
-                ):
-                    dist[nr, nc] = dist[r, c] + 1
-                    queue.append((nr, nc))
-        return dist
-
     def connected(self, a: Cell, b: Cell) -> bool:
         """Whether free cells ``a`` and ``b`` (row, col) are joined by a 4-neighbour path."""
-        return bool(self.bfs_distances(a)[b[0], b[1]] >= 0)
+        labels = region_labels(self.grid)
+        return bool(labels[a[0], a[1]] and labels[a[0], a[1]] == labels[b[0], b[1]])
 
     def placement_cells(self) -> np.ndarray:
         """int32[F, 2] cells where a robot or goal may be placed, in reading order: the free
@@ -246,10 +231,10 @@ class Maze:
 
     @functools.cached_property  # the grid is immutable; banks ask for this per maze
     def _placement(self) -> np.ndarray:
-        labels = _region_labels(self.grid)
+        labels = region_labels(self.grid)
         anchor = self.start or self.goal
         if anchor is None:
-            anchor = _largest_region_cell(self.grid)
+            anchor = largest_region_cell(self.grid)
         return np.argwhere(labels == labels[anchor]).astype(np.int32)
 
     # -- boxes --------------------------------------------------------------------
@@ -296,10 +281,6 @@ class Maze:
         return f"cell_size: {self.cell_size!r}\n{rows}\n"
 
 
-def _is_number(v: Any) -> bool:
-    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
-
-
 def _merge_runs(grid: np.ndarray) -> np.ndarray:
     """Rectangles (r0, c0, r1, c1): maximal runs of True per row, a run extended downwards
     while the next row has the identical run."""
@@ -322,46 +303,6 @@ def _runs(row: np.ndarray) -> list[tuple[int, int]]:
     padded = np.concatenate([[False], row, [False]]).astype(np.int8)
     edges = np.flatnonzero(np.diff(padded))
     return [(int(a), int(b) - 1) for a, b in zip(edges[::2], edges[1::2], strict=True)]
-
-
-def _largest_region_cell(grid: np.ndarray) -> Cell:
-    """A cell of the largest 4-connected free region (ties: the region met first in reading
-    order); ``ValueError`` if there is no free cell."""
-    labels = _region_labels(grid)
-    if not labels.any():
-        raise ValueError("the maze has no free cell")
-    best = int(np.argmax(np.bincount(labels.ravel())[1:])) + 1  # argmax: first on a tie
-    r, c = np.argwhere(labels == best)[0]
-    return int(r), int(c)
-
-
-def _region_labels(grid: np.ndarray) -> np.ndarray:
-    """int32[rows, cols]: 4-connected free regions numbered 1, 2, ... in reading order of
-    their first cell, 0 at walls. A plain flood fill: each cell is visited once, which beats
-    array-wide label propagation on the small grids used here."""
-    rows, cols = grid.shape
-    wall = grid.ravel().tolist()
-    labels = [0] * (rows * cols)
-    n = 0
-    for seed in range(rows * cols):
-        if wall[seed] or labels[seed]:
-            continue
-        n += 1
-        labels[seed] = n
-        stack = [seed]
-        while stack:
-            i = stack.pop()
-            r, c = divmod(i, cols)
-            for j, ok in (
-                (i - cols, r > 0),
-                (i + cols, r < rows - 1),
-                (i - 1, c > 0),
-                (i + 1, c < cols - 1),
-            ):
-                if ok and not wall[j] and not labels[j]:
-                    labels[j] = n
-                    stack.append(j)
-    return np.array(labels, np.int32).reshape(rows, cols)
 
 
 def check_slots(maze: Maze, num_slots: int) -> None:
@@ -647,9 +588,9 @@ def random_maze_bank(
     check_int("seed", seed, 0)
     if rows * cols < 2:
         raise ValueError(f"rows={rows}, cols={cols}: a maze needs at least 2 cells")
-    if not _is_number(cell_size) or not math.isfinite(cell_size) or cell_size <= 0:
+    if not is_number(cell_size) or not math.isfinite(cell_size) or cell_size <= 0:
         raise ValueError(f"cell_size={cell_size!r}: must be a positive number (metres)")
-    if not _is_number(wall_density) or not 0.0 <= wall_density < 1.0:
+    if not is_number(wall_density) or not 0.0 <= wall_density < 1.0:
         raise ValueError(f"wall_density={wall_density!r}: must be a number in [0, 1)")
     if num_slots is not None:
         check_slots(Maze(np.zeros((rows, cols), bool), cell_size), num_slots)  # validates it
@@ -674,11 +615,6 @@ def random_maze_bank(
     return mazes
 
 
-def check_int(name: str, v: Any, lo: int) -> None:
-    if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
-        raise ValueError(f"{name}={v!r}: must be an integer >= {lo}")
-
-
 def random_segments(
     rng: np.random.Generator, rows: int, cols: int, target: int, max_segment: int
 ) -> np.ndarray:
@@ -692,14 +628,6 @@ def random_segments(
             if rr < rows and cc < cols and grid.sum() < target:  # stop exactly at the target
                 grid[rr, cc] = True
     return grid
-
-
-def fill_pockets(grid: np.ndarray) -> np.ndarray:
-    """Walls plus every free cell outside the largest free region."""
-    if grid.all():
-        return grid
-    labels = _region_labels(grid)
-    return labels != int(np.argmax(np.bincount(labels.ravel())[1:])) + 1
 
 
 # ------------------------------------------------------------------------------ batching
