@@ -657,6 +657,7 @@ def parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run the experiment ``argv`` (default: the command line's) names; the exit code."""
     prog = "jaxnav.experiments"
     try:
         args = parser().parse_args(argv)

@@ -31,6 +31,7 @@ from jaxnav.cli import Parser, UsageError, add_env_args, fail
 from jaxnav.environment import Environment, EnvParams
 from jaxnav.evaluate import Policy, play, random_policy
 from jaxnav.programs import enable_compilation_cache
+from jaxnav.train import Trainer
 
 OUTCOMES = ("success", "collision", "timeout")
 Episode = dict[str, np.ndarray]
@@ -214,8 +215,7 @@ def parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from jaxnav.train import Trainer
-
+    """Draw as the flags in ``argv`` (default: the command line's) say; the exit code."""
     prog = "jaxnav.render"
     try:
         args = parser().parse_args(argv)
