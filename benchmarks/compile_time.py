@@ -12,8 +12,8 @@ compile time the CLI itself reports in ``summary.json``. The runs are shortened 
 ``--total-timesteps`` (one logging interval by default); the compiled programs are the same
 as a full run's, since the CLI compiles one logging interval and calls it repeatedly. For
 ``jaxnav.evaluate`` (one compiled program that plays all episodes), "first step s" is the
-wall time of the whole command. ``import`` is ``python -c "import jaxnav.cli"``: the floor
-under every start-up time.
+wall time of the whole command. ``import`` is ``python -c "import jaxnav.train.__main__"``
+(the training command line and all it imports): the floor under every start-up time.
 
 Each run also records where JAX spent its compile time (``jax.monitoring`` durations, summed
 over every program of the process, evaluation included): tracing to a jaxpr, lowering to
@@ -55,11 +55,12 @@ SECOND_RUN_TARGET_S = 3.0
 
 
 def run_recording_phases(out: Path, entry: str, argv: list[str]) -> int:
-    """Run ``jaxnav.cli``'s ``entry`` (train or evaluate) in this process; write JAX's compile
+    """Run the command line ``entry`` (train or evaluate) in this process; write JAX's compile
     phase durations and the persistent-cache hits to ``out`` (JSON)."""
     import jax
 
-    from jaxnav import cli
+    from jaxnav.evaluate.__main__ import main as evaluate_main
+    from jaxnav.train.__main__ import main as train_main
 
     totals = dict.fromkeys([*PHASES, "cache_hits"], 0.0)
     names = {event: key for key, event in PHASES.items()}
@@ -74,7 +75,7 @@ def run_recording_phases(out: Path, entry: str, argv: list[str]) -> int:
     jax.monitoring.register_event_duration_secs_listener(on_duration)
     jax.monitoring.register_event_listener(on_event)
     try:
-        return {"train": cli.train_main, "evaluate": cli.evaluate_main}[entry](argv)
+        return {"train": train_main, "evaluate": evaluate_main}[entry](argv)
     finally:
         out.write_text(json.dumps(totals))
 
@@ -133,8 +134,9 @@ def _runs(runs: list[dict[str, Any]]) -> dict[str, Any]:
 
 
 def measure_import(work: Path) -> dict[str, Any]:
-    run = timed_command(["-c", "import jaxnav.cli"], work / "cache-import", None)
-    return {"entry": "import", "command": 'python -c "import jaxnav.cli"', "first_run": run}
+    command = "import jaxnav.train.__main__"
+    run = timed_command(["-c", command], work / "cache-import", None)
+    return {"entry": "import", "command": f'python -c "{command}"', "first_run": run}
 
 
 def phases(run: dict[str, Any] | None) -> str:

@@ -22,9 +22,8 @@ import jax
 import numpy as np
 
 from benchmarks.common import machine_info, write_results
-from jaxnav.cli import format_value
 from jaxnav.config import TrainConfig
-from jaxnav.evaluate import evaluate_seeds, mean_of
+from jaxnav.evaluate import evaluate_seeds, format_value, mean_of
 from jaxnav.train import Trainer
 
 

@@ -3,14 +3,23 @@
 Subclasses implement ``reset_env`` (one fresh episode; keep it cheap, it runs on every
 step under ``vmap``) and ``step_env`` (dynamics without time limit or reset). The base
 class adds the time limit (``truncated``), auto-reset and ``info["final_observation"]``.
+
+It also declares everything the layers above read of an env, so that they never look at an
+env's own state or params: fixed test episodes (``reset_to``, ``reset_to_args``,
+``reset_layout``, ``layouts_from``), a step without auto-reset (``step_no_reset``), evaluation
+(``shortest_path_length``, ``step_length``, ``layout_index``, ``num_layouts``; success is
+``info["goal_reached"]``) and drawing (``sensor_ranges``, ``scene``). A new env is a folder
+under ``jaxnav/envs/`` with its entries in ``jaxnav.registration``.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any, Generic, TypeVar
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import struct
 
 from jaxnav import spaces
@@ -25,9 +34,19 @@ class EnvState:
 
 @struct.dataclass
 class EnvParams:
-    """Fields every environment's parameters have; subclasses add their own."""
+    """Fields every environment's parameters have; subclasses add their own, each named as the
+    env config's field it comes from (``from_config``)."""
 
     max_steps_in_episode: int = 60
+
+    @classmethod
+    def from_config(cls, config: Any, **values: Any) -> Any:
+        """These params from an env config: ``max_steps_in_episode`` from ``config.max_steps``,
+        every other field from the config field of the same name, except those in ``values``
+        (e.g. a layout bank): a setting is declared once, in the config."""
+        names = [f.name for f in dataclasses.fields(cls) if f.name not in values]
+        taken = {n: getattr(config, n) for n in names if n != "max_steps_in_episode"}
+        return cls(max_steps_in_episode=config.max_steps, **taken, **values)
 
 
 # On a GPU, ``step_batch``'s compaction (index gathers and scatters) costs more than the resets
@@ -117,6 +136,48 @@ class Environment(Generic[StateT, ParamsT]):
         gives the path ratio of ``jaxnav.evaluate``."""
         return jnp.ones(state.time.shape)
 
+    def layouts_from(self, params: ParamsT, first: int) -> ParamsT:
+        """``params`` whose bank keeps only layouts ``first``, ``first + 1``, ...: test
+        episodes on layouts a run never trained on. One layout: ``first`` must be 0."""
+        if first:
+            raise ValueError(f"no layouts after {first - 1}: the env has one layout")
+        return params
+
+    # -- fixed episodes and drawing ---------------------------------------------------
+    def reset_to(
+        self,
+        key: jax.Array,
+        params: ParamsT,
+        start: jax.Array,
+        goal: jax.Array,
+        layout: jax.Array | int = 0,
+    ) -> tuple[jax.Array, StateT]:
+        """An episode that starts at ``start`` with ``goal`` in bank layout ``layout``, in the
+        env's own terms (a grid cell, a robot pose; ``reset_to_args`` gives them), for fixed
+        test suites: every agent meets the same episodes."""
+        raise NotImplementedError
+
+    def reset_to_args(self, state: StateT) -> tuple[jax.Array, jax.Array, jax.Array]:
+        """``(start, goal, layout)`` for ``reset_to`` to start an episode where ``state``
+        stands: for the state of a fresh reset, that very episode."""
+        raise NotImplementedError
+
+    def sensor_ranges(self, state: StateT, params: ParamsT) -> jax.Array:
+        """float32[R]: what each of the agent's R range sensors reads at ``state``, in the
+        units of ``scene`` (R = 0, the default: no sensors to draw)."""
+        del state, params
+        return jnp.zeros((0,), jnp.float32)
+
+    def scene(self, params: ParamsT, states: StateT, ranges: np.ndarray) -> dict[str, np.ndarray]:
+        """One episode to draw, on the host: ``states`` (numpy leaves, leading axis the T + 1
+        states from its start) and ``ranges`` ([T + 1, R], ``sensor_ranges`` at each) as
+        numpy arrays in metres, or cells of side 1 with row 0 at the top: ``xy`` [T + 1, 2] and
+        ``heading`` [T + 1] of the agent, ``lasers`` (the ranges), ``laser_angles`` [R] (each
+        sensor's direction from the heading), ``goal`` [2], ``walls`` [K, 4] (x, y, width,
+        height of each wall rectangle), ``arena`` (width, height), ``goal_radius`` and the
+        agent's ``radius``."""
+        raise NotImplementedError
+
     # -- public API -----------------------------------------------------------------
     def reset(self, key: jax.Array, params: ParamsT | None = None) -> tuple[jax.Array, StateT]:
         return self.reset_env(key, self.default_params if params is None else params)
@@ -142,6 +203,22 @@ class Environment(Generic[StateT, ParamsT]):
         state = self._auto_reset(key_reset, done, state_step, params)
         info["final_observation"] = obs_step
         return self.get_obs(state, params), state, reward, terminated, truncated, info
+
+    def step_no_reset(
+        self,
+        key: jax.Array,
+        state: StateT,
+        action: jax.Array,
+        params: ParamsT | None = None,
+    ) -> tuple[jax.Array, StateT, jax.Array, jax.Array, jax.Array, dict[str, Any]]:
+        """``step`` without auto-reset: ``(obs, state, reward, terminated, truncated, info)``
+        of the step itself, with the same time limit, so that an evaluation can keep an
+        ended episode as it ended."""
+        params = self.default_params if params is None else params
+        _, obs, state, reward, terminated, truncated, info = self._transition(
+            key, state, action, params
+        )
+        return obs, state, reward, terminated, truncated, info
 
     def step_batch(
         self,

@@ -8,7 +8,7 @@ the random agent on the same fixed test episodes, write a results directory with
 
 Agents: ``dueling-double`` (the paper's model) and ``simple`` (plain DQN: dueling and double
 off), each trained on all seeds at once (``vmap`` over seeds in one compiled program per agent
-and training env, called once per logging interval for progress lines: ``cli.train_seeds``),
+and training env, called once per logging interval for progress lines: ``runner.train_seeds``),
 and ``random`` (a uniform action every step). Each test suite is a fixed
 list of (start, goal, layout) drawn once from ``SUITE_SEED`` and replayed with
 ``env.reset_to``, so every agent and seed meets the same episodes.
@@ -34,35 +34,27 @@ from typing import Any
 
 import jax
 import numpy as np
-from scipy import stats
 
 from jaxnav import run_dir
 from jaxnav.agents.dqn import AGENT_LABELS, PAPER_AGENTS
-from jaxnav.cli import (
-    SEED_STATISTICS,
-    Parser,
-    Progress,
-    UsageError,
-    enable_compilation_cache,
-    fail,
-    format_interval,
-    format_value,
-    load_run_on,
-    one_line,
-    parse_env_arg,
-    train_seeds,
-)
+from jaxnav.cli import Parser, UsageError, fail, one_line, parse_env_arg
 from jaxnav.config import TrainConfig
 from jaxnav.environment import Environment, EnvParams
 from jaxnav.evaluate import (
+    SEED_STATISTICS,
     evaluate_seeds,
+    format_interval,
+    format_value,
     mean_of,
     play,
     random_policy,
     seed_statistics,
     summarize,
+    t_interval,
 )
+from jaxnav.programs import enable_compilation_cache
 from jaxnav.registration import env_config, make
+from jaxnav.runner import Progress, train_seeds
 from jaxnav.train import Trainer
 
 AGENTS = PAPER_AGENTS  # name -> the TrainConfig fields that make the agent
@@ -175,11 +167,12 @@ def paper_robot(size: str, maze_file: Path, backend: str = "mjx") -> list[Study]
 def draw_suite(
     env: Environment, params: EnvParams, key: jax.Array, num: int
 ) -> dict[str, jax.Array]:
-    """``num`` (start, goal, layout) triples, drawn once like fresh resets: a robot start is a
-    pose (x, y, heading), a grid start a cell (row, col)."""
+    """``num`` (start, goal, layout) triples, drawn once like fresh resets, in the env's terms
+    (``env.reset_to_args``: e.g. a robot start is a pose (x, y, heading), a grid start a cell
+    (row, col))."""
     _, states = jax.vmap(env.reset, in_axes=(0, None))(jax.random.split(key, num), params)
-    start = states.pose if hasattr(states, "pose") else states.pos
-    return {"start": start, "goal": states.goal, "layout": states.layout}
+    start, goal, layout = jax.vmap(env.reset_to_args)(states)
+    return {"start": start, "goal": goal, "layout": layout}
 
 
 def start_suite(env: Environment, params: EnvParams, suite: dict[str, jax.Array]):
@@ -193,8 +186,7 @@ def start_suite(env: Environment, params: EnvParams, suite: dict[str, jax.Array]
 def suite_env(suite: Suite) -> tuple[Environment, EnvParams]:
     env, params = make(suite.env, **suite.env_kwargs)
     if suite.first_layout:
-        bank = jax.tree.map(lambda x: x[suite.first_layout :], params.bank)
-        params = params.replace(bank=bank)
+        params = env.layouts_from(params, suite.first_layout)
     return env, params
 
 
@@ -242,12 +234,8 @@ def mean_ci(values: Sequence[float | None]) -> dict[str, float | None]:
     x = np.asarray([v for v in values if v is not None], float)
     if len(x) == 0:
         return {"mean": None, "ci95": None}
-    half = (
-        float(stats.t.ppf(0.975, len(x) - 1) * x.std(ddof=1) / np.sqrt(len(x)))
-        if len(x) > 1
-        else None
-    )
-    return {"mean": float(x.mean()), "ci95": half}
+    mean, half = t_interval(x)
+    return {"mean": float(mean), "ci95": float(half) if len(x) > 1 else None}
 
 
 # -------------------------------------------------------------------------------- running
@@ -264,7 +252,7 @@ def run_experiment(
     from jaxnav import plots, render  # matplotlib only once there is something to draw
 
     t_start = time.perf_counter()
-    partial = out.with_name(f".{out.name}.partial")
+    partial = run_dir.partial_dir(out)
     shutil.rmtree(partial, ignore_errors=True)
     (partial / "runs").mkdir(parents=True)
     results: dict[str, Any] = {
@@ -331,9 +319,7 @@ def run_experiment(
     results["wall_s"] = time.perf_counter() - t_start
     run_dir.write_json(partial / "results.json", results)
     (partial / "results.md").write_text(results_markdown(results))
-    if out.exists():
-        out.rmdir()  # checked empty before any work
-    partial.rename(out)
+    run_dir.complete(partial, out)
     print(f"\nwall time {results['wall_s']:.0f}s; results in {out}")
     return results
 
@@ -344,10 +330,8 @@ def _train(config: TrainConfig, path: Path, quiet: bool) -> dict[str, Any]:
     state, metrics, compile_s, train_s = train_seeds(
         trainer, run_dir.seed_keys(config), Progress(config, quiet)
     )
-    path.mkdir()
-    run_dir.write_json(path / "config.json", run_dir.config_document(config, trainer))
-    run_dir.write_metrics_csv(path / "metrics.csv", metrics, run_dir.seeds_of(config))
-    run_dir.save_params(path, state.params)
+    run_dir.create(path, trainer)
+    run_dir.write_trained(path, config, metrics, state.params)
     print(f"    compile {compile_s:.1f}s, train {train_s:.1f}s", flush=True)
     record = {
         "env": config.env,
@@ -415,13 +399,6 @@ def print_rows(suite: str, rows: dict[str, Any]) -> None:
 # ------------------------------------------------------------------------ generalization
 HELD_OUT_MAZE_SEED = 1_000_003  # maze_seed of the held-out mazes of the run's own env
 EXAMPLE_MAZES = EXAMPLE_MAZE.parent
-# env overrides that choose the mazes: not carried from a run to another family's env (every
-# other override of the run, e.g. its sensors, observation, speed or backend, is)
-MAZE_KEYS = frozenset(
-    {"maze", "maze_file", "maze_seed", "num_layouts", "random_size", "num_wall_slots"}
-    | {"families", "num_goal_cells"}
-    | {"layout_seed", "random_layouts", "goals_per_layout", "obstacle_density", "size"}
-)
 OWN = "own"  # a family's env: the run's own env id, with all its overrides
 GENERALIZATION_METRICS = (
     "success_rate",
@@ -435,8 +412,8 @@ GENERALIZATION_METRICS = (
 @dataclasses.dataclass(frozen=True)
 class Family:
     """Mazes to test on: ``env`` (``OWN``: the run's env and all its overrides; another id:
-    every setting of the run's env that differs from that id's, less ``MAZE_KEYS``) with
-    ``env_kwargs`` on top."""
+    every setting of the run's env that differs from that id's, less the settings that choose
+    the mazes, each env config's ``MAZE_FIELDS``) with ``env_kwargs`` on top."""
 
     name: str
     env: str
@@ -447,13 +424,15 @@ class Family:
         if self.env == OWN:
             return config.env, {**config.env_kwargs, **self.env_kwargs}
         # every setting of the run's env that differs from this env's (the run id's own
-        # settings too, e.g. RobotNav-v0's sensors), less the maze-picking ones
-        trained = dataclasses.asdict(env_config(config.env, **config.env_kwargs))
-        target = dataclasses.asdict(env_config(self.env, **self.env_kwargs))
+        # settings too, e.g. RobotNav-v0's sensors, observation, speed or backend), less the
+        # maze-picking ones
+        trained_config = env_config(config.env, **config.env_kwargs)
+        target_config = env_config(self.env, **self.env_kwargs)
+        mazes = trained_config.MAZE_FIELDS | target_config.MAZE_FIELDS
+        trained = dataclasses.asdict(trained_config)
+        target = dataclasses.asdict(target_config)
         carried = {
-            k: v
-            for k, v in trained.items()
-            if k in target and k not in MAZE_KEYS and v != target[k]
+            k: v for k, v in trained.items() if k in target and k not in mazes and v != target[k]
         }
         return self.env, {**carried, **self.env_kwargs}
 
@@ -511,7 +490,7 @@ def evaluate_family(
     for run in runs:
         try:
             env, env_kwargs = family.for_run(run_dir.load_config(run))
-            _, trainer, params = load_run_on(run, env, env_kwargs)
+            _, trainer, params = run_dir.load_run_on(run, env, env_kwargs)
         except (ValueError, FileNotFoundError) as e:
             skipped.append(f"{run}: {one_line(str(e))}")
             continue
@@ -678,6 +657,7 @@ def parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run the experiment ``argv`` (default: the command line's) names; the exit code."""
     prog = "jaxnav.experiments"
     try:
         args = parser().parse_args(argv)

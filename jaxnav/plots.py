@@ -23,10 +23,10 @@ import matplotlib
 matplotlib.use("Agg")  # files only; notebooks show the returned figures themselves
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-from scipy import stats  # noqa: E402
 
 from jaxnav import render  # noqa: E402
 from jaxnav.agents.dqn import AGENT_LABELS as LABELS  # noqa: E402
+from jaxnav.evaluate import t_interval  # noqa: E402
 
 COLORS = {"dueling-double": "tab:blue", "simple": "tab:orange", "random": "tab:gray"}
 CURVES = (
@@ -36,15 +36,6 @@ CURVES = (
     ("success_rate", "success rate"),
 )
 FIRST_EPISODES = 100  # test episodes shown one by one in the comparison
-
-
-def _band(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Mean over axis 0 and the half-width of its 95% t-interval."""
-    n = x.shape[0]
-    mean = x.mean(axis=0)
-    if n < 2:
-        return mean, np.zeros_like(mean)
-    return mean, stats.t.ppf(0.975, n - 1) * x.std(axis=0, ddof=1) / np.sqrt(n)
 
 
 def training_curves(results: dict[str, Any]) -> Any:
@@ -61,7 +52,7 @@ def training_curves(results: dict[str, Any]) -> Any:
                 values = np.asarray(m[metric], float)
                 if metric == "loss":  # no updates yet during warm-up: nothing to plot
                     values = np.where(values > 0, values, np.nan)
-                mean, half = _band(values)
+                mean, half = t_interval(values)
                 ax.plot(steps, mean, color=COLORS[agent], label=LABELS[agent])
                 ax.fill_between(steps, mean - half, mean + half, color=COLORS[agent], alpha=0.25)
             if metric == "loss":

@@ -1,6 +1,6 @@
 """The compiled programs of a training run, with their traced form kept on disk.
 
-XLA's persistent cache (``cli.enable_compilation_cache``) skips compiling a program seen
+XLA's persistent cache (``enable_compilation_cache``) skips compiling a program seen
 before, but JAX must still trace the Python code to know which program it is: for the MJX
 robot that trace is most of a second run's start-up. So the traced programs (``jax.export``,
 StableHLO) are stored next to the XLA cache, under a key made of everything that decides
@@ -46,9 +46,19 @@ class TrainingPrograms:
     from_cache: bool
 
 
+def enable_compilation_cache() -> None:
+    """Persist compiled programs across runs (``JAXNAV_CACHE_DIR``, default
+    ``~/.cache/jaxnav/xla``; set it to an empty string to disable): a second run of the same
+    config skips XLA compilation. Every command line turns it on."""
+    path = os.environ.get("JAXNAV_CACHE_DIR", str(Path.home() / ".cache" / "jaxnav" / "xla"))
+    if path:
+        jax.config.update("jax_compilation_cache_dir", path)
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+
+
 def cache_directory() -> Path | None:
     """Where traced programs are kept: ``programs/`` in XLA's persistent cache directory when
-    that cache is on (``cli.enable_compilation_cache``), else nowhere. Not used in a run over
+    that cache is on (``enable_compilation_cache``), else nowhere. Not used in a run over
     several processes."""
     xla = jax.config.jax_compilation_cache_dir
     return Path(xla) / "programs" if xla else None

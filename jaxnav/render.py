@@ -4,9 +4,10 @@
     python -m jaxnav.render RUN_DIR --episodes 4 --out traj.png   # paths and laser fans
 
 ``record`` plays episodes with ``evaluate.play(record=True)`` (one compiled scan that returns
-every state, and for the robot the 7 laser ranges of every pose) and turns each episode into a
-dict of numpy arrays in metres (grid: cells of side 1, row 0 at the top): the path, headings,
-lasers, goal, outcome and the maze's wall rectangles. ``draw_episode`` and ``save_gif`` only
+every state, and the env's ``sensor_ranges`` of every state, e.g. the robot's laser ranges) and
+turns each episode into a dict of numpy arrays (the env's ``scene``: in metres, or cells of
+side 1 with row 0 at the top): the path, headings, lasers, goal, outcome and the maze's wall
+rectangles. ``draw_episode`` and ``save_gif`` only
 read those arrays, so a recorded episode can be saved (``np.savez``) and drawn later.
 """
 
@@ -26,9 +27,11 @@ import numpy as np
 
 from jaxnav import run_dir
 from jaxnav.agents import dqn
-from jaxnav.cli import Parser, UsageError, add_env_args, enable_compilation_cache, fail
+from jaxnav.cli import Parser, UsageError, add_env_args, fail
 from jaxnav.environment import Environment, EnvParams
 from jaxnav.evaluate import Policy, play, random_policy
+from jaxnav.programs import enable_compilation_cache
+from jaxnav.train import Trainer
 
 OUTCOMES = ("success", "collision", "timeout")
 Episode = dict[str, np.ndarray]
@@ -45,13 +48,12 @@ def record(
     """Play the batch of episodes starting at ``(obs, state)`` to their end; one ``Episode``
     (numpy arrays, see the module docstring) per episode."""
     max_steps = int(env_params.max_steps_in_episode)
-    has_lasers = hasattr(env, "lasers")
 
     def rollout(obs, state, key):
         out = play(env, env_params, policy, key, obs, state, max_steps, record=True)
-        if has_lasers:  # [T+1, N, 7] ranges in metres, from the recorded poses
-            lasers = lambda s: env.lasers(s.pose, s.layout, env_params)  # noqa: E731
-            out["lasers"] = jax.vmap(jax.vmap(lasers))(out["states"])
+        # [T+1, N, R] sensor ranges, from the recorded states
+        ranges = lambda s: env.sensor_ranges(s, env_params)  # noqa: E731
+        out["ranges"] = jax.vmap(jax.vmap(ranges))(out["states"])
         return out
 
     key = jax.random.key(0) if key is None else key
@@ -62,8 +64,6 @@ def record(
 def _episode(env: Environment, env_params: EnvParams, out: dict[str, Any], i: int) -> Episode:
     steps = int(out["steps"][i])
     states = jax.tree.map(lambda x: x[: steps + 1, i], out["states"])
-    layout = int(states.layout[0])
-    bank = env_params.bank
     outcome = OUTCOMES.index(
         "success" if out["success"][i] else "collision" if out["collision"][i] else "timeout"
     )
@@ -74,36 +74,7 @@ def _episode(env: Environment, env_params: EnvParams, out: dict[str, Any], i: in
         # env.shortest_path_length: grid moves, robot metres (less the goal radius); -1 unknown
         "shortest_path": np.float32(out["shortest_path"][i]),
     }
-    if hasattr(states, "pose"):  # robot: metres already; walls are boxes
-        walls = jax.tree.map(lambda x: np.asarray(x[layout]), bank.walls)
-        act = walls.active
-        corner = walls.center[act] - walls.half_size[act]
-        return common | {
-            "xy": states.pose[:, :2],
-            "heading": states.pose[:, 2],
-            "lasers": out["lasers"][: steps + 1, i],
-            "laser_angles": np.asarray(env.angles),
-            "goal": states.goal[0],
-            "walls": np.concatenate([corner, 2 * walls.half_size[act]], axis=1),
-            "arena": np.asarray(env.arena, np.float32),
-            "goal_radius": np.float32(env_params.goal_radius),
-            "radius": np.float32(env.config.radius),
-        }
-    size = env.size  # grid: cell (row, col) -> centre (col + 0.5, size - row - 0.5)
-    to_xy = lambda rc: np.stack([rc[..., 1] + 0.5, size - rc[..., 0] - 0.5], -1)  # noqa: E731
-    blocked = np.argwhere(np.asarray(bank.obstacles[layout]))
-    cells = to_xy(blocked) - 0.5
-    return common | {
-        "xy": to_xy(states.pos).astype(np.float32),
-        "heading": np.zeros(steps + 1, np.float32),
-        "lasers": np.zeros((steps + 1, 0), np.float32),
-        "laser_angles": np.zeros(0, np.float32),
-        "goal": to_xy(states.goal[0]).astype(np.float32),
-        "walls": np.concatenate([cells, np.ones_like(cells)], axis=1).astype(np.float32),
-        "arena": np.array([size, size], np.float32),
-        "goal_radius": np.float32(0.4),
-        "radius": np.float32(0.3),
-    }
+    return common | env.scene(env_params, states, out["ranges"][: steps + 1, i])
 
 
 def describe(ep: Episode) -> str:
@@ -244,8 +215,7 @@ def parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from jaxnav.train import Trainer
-
+    """Draw as the flags in ``argv`` (default: the command line's) say; the exit code."""
     prog = "jaxnav.render"
     try:
         args = parser().parse_args(argv)

@@ -1,4 +1,9 @@
-"""A training run on disk: config.json, metrics.csv, params/ (orbax), summary.json, eval.json."""
+"""A training run on disk: config.json, metrics.csv, params/ (orbax), summary.json, eval.json.
+
+The one writer and reader of run directories: ``python -m jaxnav.train`` (through
+``jaxnav.runner``) and ``jaxnav.experiments`` write them, ``jaxnav.evaluate``,
+``jaxnav.render`` and the generalization experiment read them (``load_run_on``).
+"""
 
 from __future__ import annotations
 
@@ -18,8 +23,10 @@ import jax.numpy as jnp
 import numpy as np
 import orbax.checkpoint as ocp
 
+from jaxnav.agents import dqn
 from jaxnav.checkpoints import this_process_only
 from jaxnav.config import TrainConfig
+from jaxnav.train import Trainer
 
 PACKAGES = ("jaxnav", "jax", "jaxlib", "flax", "optax", "chex", "orbax-checkpoint", "mujoco-mjx")
 
@@ -76,6 +83,14 @@ def check_writable(out: Path) -> None:
             pass
     except OSError:
         raise ValueError(f"--out {out}: {parent} is not a writable directory") from None
+
+
+def complete(partial: Path, out: Path) -> None:
+    """Rename the finished directory ``partial`` to ``out`` (an empty directory at ``out``,
+    checked before any work, is replaced): a crash never leaves half a run at ``out``."""
+    if out.exists():
+        out.rmdir()
+    partial.rename(out)
 
 
 def config_to_json(config: TrainConfig) -> dict[str, Any]:
@@ -156,7 +171,13 @@ def load_network(run: Path) -> dict[str, Any]:
         raise ValueError(f"{run / 'config.json'}: unreadable network description ({e})") from None
 
 
-def config_document(config: TrainConfig, trainer: Any) -> dict[str, Any]:
+def load_checkpointing(run: Path) -> dict[str, int]:
+    """The checkpoint flags saved with a run by ``python -m jaxnav.train`` (none in runs
+    written before they were saved)."""
+    return json.loads((run / "config.json").read_text()).get("checkpointing", {})
+
+
+def config_document(config: TrainConfig, trainer: Trainer) -> dict[str, Any]:
     """The contents of a run's config.json: effective config, network, software and machine."""
     return {
         "config": config_to_json(config),
@@ -171,8 +192,40 @@ def config_document(config: TrainConfig, trainer: Any) -> dict[str, Any]:
     }
 
 
-def load_trained_params(run: Path, trainer: Any) -> Any:
+def create(run: Path, trainer: Trainer, **sections: Any) -> None:
+    """Make the run directory ``run`` with its config.json: ``config_document`` of the
+    trainer's config, then ``sections`` (e.g. ``checkpointing``)."""
+    run.mkdir(parents=True)
+    write_json(run / "config.json", {**config_document(trainer.config, trainer), **sections})
+
+
+def write_trained(
+    run: Path, config: TrainConfig, metrics: dict[str, np.ndarray], params: Any
+) -> None:
+    """A trained run's metrics.csv (one row per seed and logging interval) and params/."""
+    write_metrics_csv(run / "metrics.csv", metrics, seeds_of(config))
+    save_params(run, params)
+
+
+def load_trained_params(run: Path, trainer: Trainer) -> Any:
     """The run's parameters (seeds stacked), shaped by ``trainer``'s network."""
     init = lambda k: trainer.network.init(k, jnp.zeros((1, trainer.obs_size)))  # noqa: E731
     like = jax.eval_shape(jax.vmap(init), seed_keys(trainer.config))
     return load_params(run, like)
+
+
+def load_run_on(
+    run: Path, env: str, env_kwargs: dict[str, Any]
+) -> tuple[TrainConfig, Trainer, Any]:
+    """``(config, trainer, params)`` of the trained run directory ``run`` set up on ``env``
+    with exactly ``env_kwargs``; ``ValueError`` (or ``FileNotFoundError``) where the run or the
+    env is bad or the env's observations do not fit the run's network."""
+    config = load_config(run)
+    config = dataclasses.replace(config, env=env, env_kwargs=dict(env_kwargs))
+    config.validate()
+    trainer = Trainer(config)
+    network = load_network(run)
+    onehot = network.get("onehot_sizes")  # runs before it was saved had none
+    want = (network["obs_size"], None if onehot is None else tuple(onehot))
+    dqn.check_input_fits(config.env, trainer.network_input, want)
+    return config, trainer, load_trained_params(run, trainer)

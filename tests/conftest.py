@@ -3,6 +3,7 @@ worker, so each test pays for its assertions, not for compilation."""
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import os
 
@@ -159,3 +160,22 @@ def random_rollout(step, env, params, key: jax.Array, num_envs: int, steps: int)
         return out[1], out
 
     return jax.lax.scan(body, state, jax.random.split(k_run, steps))[1]
+
+
+def bfs_distances(grid: np.ndarray, source: tuple[int, int]) -> np.ndarray:
+    """The tests' oracle for the library's BFS (``maze_algorithms.distance_field``), in plain
+    Python: 4-neighbour steps from ``source`` to every cell of ``grid`` (True = wall); -1 at
+    walls and cells cut off, everywhere when ``source`` is a wall."""
+    rows, cols = grid.shape
+    dist = np.full(grid.shape, -1, np.int32)
+    if grid[source]:
+        return dist
+    dist[source] = 0
+    queue = collections.deque([source])
+    while queue:
+        r, c = queue.popleft()
+        for nr, nc in ((r - 1, c), (r + 1, c), (r, c - 1), (r, c + 1)):
+            if 0 <= nr < rows and 0 <= nc < cols and not grid[nr, nc] and dist[nr, nc] < 0:
+                dist[nr, nc] = dist[r, c] + 1
+                queue.append((nr, nc))
+    return dist

@@ -9,7 +9,8 @@ import sys
 
 import pytest
 
-from jaxnav.cli import evaluate_main, train_main
+from jaxnav.evaluate.__main__ import main as evaluate_main
+from jaxnav.train.__main__ import main as train_main
 
 TINY = [
     "--env-arg", "size=7",

@@ -12,7 +12,6 @@ import numpy as np
 import pytest
 
 import jaxnav
-from jaxnav.cli import evaluate_main, train_main
 from jaxnav.evaluate import (
     MIN_EPISODES_PER_MAZE,
     bootstrap_ci,
@@ -25,7 +24,9 @@ from jaxnav.evaluate import (
     summarize,
     worst_fraction_mean,
 )
+from jaxnav.evaluate.__main__ import main as evaluate_main
 from jaxnav.experiments import main as experiments_main
+from jaxnav.train.__main__ import main as train_main
 
 ROBOT = {"backend": "kinematic", "num_layouts": 4, "random_size": 5}
 

@@ -7,8 +7,8 @@ import functools
 
 import jaxnav
 from jaxnav.config import TrainConfig
-from jaxnav.envs.robot.env import GENERALIST
-from jaxnav.experiments import MAZE_KEYS, OWN, Family, default_families
+from jaxnav.envs.robot.env import GENERALIST, RobotConfig
+from jaxnav.experiments import OWN, Family, default_families
 
 # a small bank on another seed: the run's own maze-picking overrides must stay behind too
 RUN = TrainConfig.for_env("RobotNav-v0", algo="pqn", env_kwargs={"num_layouts": 4, "maze_seed": 7})
@@ -38,7 +38,7 @@ def test_another_env_gets_the_generalists_settings_less_its_mazes():
     assert {k: kwargs.get(k) for k in want} == want
     for key in ("maze", "num_layouts", "num_goal_cells", "families", "maze_seed"):
         assert key not in kwargs, key
-    assert not set(kwargs) & MAZE_KEYS
+    assert not set(kwargs) & RobotConfig.MAZE_FIELDS
     # only what differs from the target's own config: the frame count is the same
     assert "frames" not in kwargs and "radius" not in kwargs
     # the same observation as the run's env, on the paper's complex maze

@@ -18,6 +18,7 @@ from hypothesis import strategies as st
 import jaxnav
 from jaxnav.agents import dqn
 from jaxnav.envs import grid_maze as gm
+from jaxnav.envs import maze_algorithms
 
 UP, DOWN, LEFT, RIGHT = 0, 1, 2, 3
 MOVE = {UP: (-1, 0), DOWN: (1, 0), LEFT: (0, -1), RIGHT: (0, 1)}
@@ -418,8 +419,8 @@ def test_rollout_invariants(env_fixture, request, seed):
         assert shortest[t, e] == cache[key][tuple(pos[t, e])]
 
 
-_shortest_jit = jax.jit(gm.shortest_path_length)
-_field_jit = jax.jit(gm.distance_field)
+_shortest_jit = jax.jit(maze_algorithms.shortest_path_length)
+_field_jit = jax.jit(maze_algorithms.distance_field)
 SIDE = 6
 cell = st.tuples(st.integers(0, SIDE - 1), st.integers(0, SIDE - 1))
 
@@ -435,7 +436,7 @@ def test_shortest_path_length_matches_python_bfs(cells, start, goal):
     got = int(_shortest_jit(jnp.asarray(obstacles), jnp.array(start), jnp.array(goal)))
     assert got == py_shortest(obstacles, start, goal)
     field = np.asarray(_field_jit(jnp.asarray(obstacles), jnp.array(goal)))
-    expected = np.full((SIDE, SIDE), gm.UNREACHABLE)
+    expected = np.full((SIDE, SIDE), maze_algorithms.UNREACHABLE)
     for c, d in bfs(obstacles, goal).items():
         expected[c] = d
     np.testing.assert_array_equal(field, expected)

@@ -16,9 +16,11 @@ from hypothesis import strategies as st
 
 import jaxnav
 from jaxnav import run_dir
-from jaxnav.cli import UsageError, prepare_training, train_main
+from jaxnav.cli import UsageError
 from jaxnav.envs.grid_maze import GridMazeConfig
 from jaxnav.envs.robot.env import RobotConfig
+from jaxnav.train.__main__ import main as train_main
+from jaxnav.train.__main__ import prepare_training
 
 # a run small enough to train in a second or two; fuzzed flags come after and override it
 BASE = [*TINY_FLAGS, "--total-timesteps", "64", "--eval-episodes", "4"]

@@ -22,7 +22,7 @@ if ROOT not in sys.path:
 
 from benchmarks import multiprocess  # noqa: E402
 from jaxnav import run_dir  # noqa: E402
-from jaxnav.cli import train_main  # noqa: E402
+from jaxnav.train.__main__ import main as train_main  # noqa: E402
 
 FLAGS = [*TINY_FLAGS, "--eval-episodes", "4", "--devices", "all"]
 pytestmark = pytest.mark.xdist_group("multihost")  # two processes of their own

@@ -15,9 +15,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from jaxnav.agents import dqn, pqn
-from jaxnav.cli import train_main
 from jaxnav.config import TrainConfig
 from jaxnav.train import Trainer
+from jaxnav.train.__main__ import main as train_main
 
 # TINY_TRAIN as PQN: 4 envs x 2 steps per rollout, 2 minibatches of 4 transitions, 2 epochs
 TINY_PQN = dataclasses.replace(

@@ -5,10 +5,11 @@ from __future__ import annotations
 
 import pytest
 
-from jaxnav.cli import config_from_args, train_parser
 from jaxnav.config import ALGOS, TrainConfig
 from jaxnav.presets import GENERALIST_PQN, PRESETS, ROBOT_DQN, train_defaults
 from jaxnav.registration import registered_envs
+from jaxnav.train.__main__ import config_from_args
+from jaxnav.train.__main__ import parser as train_parser
 
 CORRIDOR = "#######\n.......\n#######\n"
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 from conftest import TINY_FLAGS
 
-from jaxnav.cli import train_main
+from jaxnav.train.__main__ import main as train_main
 
 FLAGS = [*TINY_FLAGS, "--total-timesteps", "64", "--eval-episodes", "4"]
 

@@ -20,8 +20,8 @@ import pytest
 from conftest import TINY_FLAGS  # pytest puts tests/ on sys.path
 
 from jaxnav import run_dir
-from jaxnav.cli import train_main
 from jaxnav.train import DIVERGENCE_QUANTITIES, Trainer
+from jaxnav.train.__main__ import main as train_main
 
 # 25 logging intervals of 32 env steps, a checkpoint after every other: seconds of training
 TINY = [
@@ -142,7 +142,8 @@ def test_signal_saves_a_checkpoint_and_says_how_to_resume(signum, cache_env, tmp
 def unfinished_run(tmp_path: Path, extra: list[str] = ()) -> Path:
     """An unfinished run killed before its first checkpoint: only its config.json exists."""
     out = tmp_path / "run"
-    from jaxnav.cli import config_from_args, train_parser
+    from jaxnav.train.__main__ import config_from_args
+    from jaxnav.train.__main__ import parser as train_parser
 
     args = train_parser().parse_args([*TINY, *extra])
     config = config_from_args(args)

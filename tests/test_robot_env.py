@@ -11,6 +11,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import bfs_distances
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -122,7 +123,7 @@ def test_progress_reward_follows_the_geodesic_distance(simple):
         (r0, c0), (r1, c1) = free[rng.choice(len(free), 2, replace=False)]
         xy = maze.cell_center(r0, c0) + rng.uniform(-0.45, 0.45, 2) * maze.cell_size
         goal = np.array(maze.cell_center(r1, c1))
-        want = maze.bfs_distances((r1, c1))[maze.cell_at(*xy)] * maze.cell_size
+        want = bfs_distances(maze.grid, (r1, c1))[maze.cell_at(*xy)] * maze.cell_size
         got = env.goal_distance(jnp.array([*xy, 0.0]), jnp.array(goal), 0, params)
         assert float(got) == pytest.approx(want)
     # goal (8.5, 5.5) lies beyond the lower wall, whose gap is at x < 3: stepping left from

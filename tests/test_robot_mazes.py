@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import bfs_distances
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -79,10 +80,32 @@ def test_load_maze_from_file(tmp_path):
     assert m.connected(m.start, m.goal)
 
 
+def test_a_run_parses_its_maze_file_once(tmp_path, monkeypatch):
+    """Preparing a training run validates the config several times and builds the env: one
+    parse of the file; a changed file is read anew."""
+    from jaxnav.train.__main__ import prepare_training
+
+    path = tmp_path / "maze.txt"
+    path.write_text(M.SIMPLE)
+    parsed = []
+    parse = M.parse_maze
+    monkeypatch.setattr(
+        M, "parse_maze", lambda text, name, **kw: parsed.append(name) or parse(text, name, **kw)
+    )
+    flags = ["--maze-file", str(path), "--env-arg", "backend=kinematic", "--num-envs", "4"]
+    args, config, *_, trainer = prepare_training([*flags, "--out", str(tmp_path / "run")])
+    assert config.env == "RobotMaze-v0" and trainer.env.config.maze_file == str(path)
+    assert parsed == [str(path)]
+    M.load_maze(path)
+    assert parsed == [str(path)]
+    path.write_text(M.COMPLEX)  # another size
+    assert M.load_maze(path).cell_size == 0.5 and parsed == [str(path)] * 2
+
+
 def test_connectivity_helpers():
     m = M.parse_maze(".#.\n.#.\n...\n")
     assert m.connected((0, 0), (0, 2))
-    d = m.bfs_distances((0, 0))
+    d = bfs_distances(m.grid, (0, 0))
     assert d[0, 2] == 6 and d[0, 1] == -1
     walled = M.parse_maze("..#.\n..#.\n")
     assert not walled.connected((0, 0), (0, 3))
@@ -237,7 +260,7 @@ def test_builtins_parse_and_are_connected(name):
     assert m.size_m == (10.0, 10.0)
     free = m.free_cells()
     np.testing.assert_array_equal(m.placement_cells(), free)  # one free region
-    d = m.bfs_distances(tuple(free[0]))
+    d = bfs_distances(m.grid, tuple(free[0]))
     assert (d[~m.grid] >= 0).all()
     again = M.parse_maze(M.BUILTIN_MAZES[name])
     np.testing.assert_array_equal(again.grid, m.grid)
@@ -250,7 +273,7 @@ def test_builtins_simple_and_complex():
     assert complex_.grid.shape == (20, 20) and complex_.cell_size == 0.5
     assert len(complex_.wall_boxes()) >= 10
     # corridors: the BFS path across the complex maze is much longer than the straight line
-    d = complex_.bfs_distances((19, 0))
+    d = bfs_distances(complex_.grid, (19, 0))
     assert d[0, 19] > 2 * 19
     with pytest.raises(ValueError, match="unknown built-in maze 'medium'; choices: simple"):
         M.builtin_maze("medium")
@@ -272,7 +295,7 @@ def test_random_bank_free_cells_connected(seed, rows, cols, density):
         free = m.free_cells()
         assert len(free) >= 2
         np.testing.assert_array_equal(m.placement_cells(), free)  # one region
-        assert (m.bfs_distances(tuple(free[0]))[~m.grid] >= 0).all()
+        assert (bfs_distances(m.grid, tuple(free[0]))[~m.grid] >= 0).all()
         assert m.grid.mean() <= density + 0.1 + 1e-9
 
 
@@ -353,7 +376,7 @@ def assert_connected(m: M.Maze) -> None:
     free = m.free_cells()
     assert len(free) >= 2
     np.testing.assert_array_equal(m.placement_cells(), free)
-    assert (m.bfs_distances(tuple(free[0]))[~m.grid] >= 0).all()
+    assert (bfs_distances(m.grid, tuple(free[0]))[~m.grid] >= 0).all()
 
 
 @settings(max_examples=40, deadline=None)
@@ -414,7 +437,7 @@ def test_bank_with_k_goal_cells_matches_bfs():
         assert (source >= 0).sum() == k
         for j, i in enumerate(idx):
             r, c = (int(v) for v in bank.free_cells[b, i])
-            np.testing.assert_array_equal(bank.goal_distance[b, j], m.bfs_distances((r, c)))
+            np.testing.assert_array_equal(bank.goal_distance[b, j], bfs_distances(m.grid, (r, c)))
             assert source[r * cols + c] == j
     full = M.stack_mazes(mazes[:1], 44)
     assert full.goal_index is None and full.goal_source is None

@@ -4,7 +4,6 @@ on a shortest path to the goal, checked against an independent BFS on the maze g
 
 from __future__ import annotations
 
-import collections
 import functools
 import math
 
@@ -12,6 +11,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import bfs_distances
 
 import jaxnav
 from jaxnav.envs.robot.env import GENERALIST, GENERALIST_SENSORS
@@ -43,22 +43,6 @@ ENVS = [
     ("RobotComplex-v0", (("waypoint_cells", 3),)),
 ]
 ENV_IDS = ["generalist", "generalist-5-cells", "complex-1-cell", "complex-3-cells"]
-
-
-def bfs(grid: np.ndarray, source: tuple[int, int]) -> np.ndarray:
-    """4-neighbour steps from ``source`` to every cell of ``grid`` (True = wall); -1 where
-    none (walls, cells cut off)."""
-    rows, cols = grid.shape
-    dist = np.full(grid.shape, -1, np.int64)
-    dist[source] = 0
-    queue = collections.deque([source])
-    while queue:
-        r, c = queue.popleft()
-        for nr, nc in ((r - 1, c), (r + 1, c), (r, c - 1), (r, c + 1)):
-            if 0 <= nr < rows and 0 <= nc < cols and not grid[nr, nc] and dist[nr, nc] < 0:
-                dist[nr, nc] = dist[r, c] + 1
-                queue.append((nr, nc))
-    return dist
 
 
 def cell_of(xy, rows: int, cell_size: float) -> tuple[int, int]:
@@ -106,7 +90,7 @@ def test_following_waypoints_walks_a_shortest_path_to_the_goal(env_id, overrides
     pose = pose.astype(np.float32)
     # the reference: BFS steps to each episode's goal cell, on its maze's grid
     ref = [
-        bfs(np.asarray(bank.grid[lay]), cell_of(g, rows, cs))
+        bfs_distances(np.asarray(bank.grid[lay]), cell_of(g, rows, cs))
         for lay, g in zip(layout, goal, strict=True)
     ]
     steps = np.array([r[cell_of(p, rows, cs)] for r, p in zip(ref, pose, strict=True)])

@@ -10,10 +10,10 @@ import pytest
 from conftest import TINY_TRAIN, run_sharded
 
 from jaxnav import sharding
-from jaxnav.cli import train_main
 from jaxnav.config import TrainConfig
 from jaxnav.sharding import ENVS, SEEDS
 from jaxnav.train import Trainer
+from jaxnav.train.__main__ import main as train_main
 
 # two logging intervals of random actions only, then learning
 WARM_UP = dataclasses.replace(TINY_TRAIN, learning_starts=64)

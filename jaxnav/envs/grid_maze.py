@@ -39,7 +39,7 @@ Observation modes (all encode the paper's information: robot, goal and obstacle 
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+from typing import Any, ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -48,17 +48,29 @@ from flax import struct
 
 from jaxnav import spaces
 from jaxnav.environment import Environment, EnvParams, EnvState
+from jaxnav.envs.maze_algorithms import (
+    bank_distances,
+    check_int,
+    fill_pockets,
+    is_number,
+    shortest_path_length,
+)
 
 # (drow, dcol) of the actions up, down, left, right
 ACTION_NAMES = ("up", "down", "left", "right")
 MOVES = np.array([[-1, 0], [1, 0], [0, -1], [0, 1]], dtype=np.int32)
 OBS_MODES = ("index", "onehot", "paper", "sensor")
-UNREACHABLE = -1
 
 
 @dataclasses.dataclass(frozen=True)
 class GridMazeConfig:
     """Everything that defines a GridMaze; ``jaxnav.make(id, **overrides)`` replaces fields."""
+
+    # the fields that choose the layouts (a policy tested on other mazes keeps the rest)
+    MAZE_FIELDS: ClassVar[frozenset[str]] = frozenset(
+        {"size", "obstacle_density", "layout_seed", "random_layouts", "num_layouts"}
+        | {"goals_per_layout"}
+    )
 
     size: int = 15
     obstacle_density: float = 0.2
@@ -75,27 +87,27 @@ class GridMazeConfig:
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming the first bad field."""
-        check_int(self, "size", 2, 255)
-        check_int(self, "layout_seed", 0, 2**32 - 1)
-        check_int(self, "num_layouts", 1, 1_000_000)
-        check_int(self, "goals_per_layout", 1, 1_000_000)
-        check_int(self, "sensor_radius", 1, 64)
-        check_int(self, "max_steps", 1, 1_000_000)
+        check_int("size", self.size, 2, 255)
+        check_int("layout_seed", self.layout_seed, 0, 2**32 - 1)
+        check_int("num_layouts", self.num_layouts, 1, 1_000_000)
+        check_int("goals_per_layout", self.goals_per_layout, 1, 1_000_000)
+        check_int("sensor_radius", self.sensor_radius, 1, 64)
+        check_int("max_steps", self.max_steps, 1, 1_000_000)
         if not isinstance(self.random_layouts, bool):
             raise ValueError(f"random_layouts={self.random_layouts!r}: must be true or false")
         if self.obs_mode not in OBS_MODES:
             raise ValueError(f"obs_mode={self.obs_mode!r}: must be one of {', '.join(OBS_MODES)}")
         d = self.obstacle_density
-        if not _is_number(d) or not 0.0 <= d < 1.0:
+        if not is_number(d) or not 0.0 <= d < 1.0:
             raise ValueError(f"obstacle_density={d!r}: must be a number in [0, 1)")
         if self.size * self.size - round(d * self.size * self.size) < 2:
             raise ValueError(
                 f"obstacle_density={d!r}: more obstacles than a {self.size}x{self.size} grid "
                 "can hold with a free start and goal"
             )
-        for name in ("goal_reward", "collision_reward", "step_reward"):
+        for name in (f.name for f in dataclasses.fields(self) if "reward" in f.name):
             v = getattr(self, name)
-            if not _is_number(v) or not np.isfinite(v):
+            if not is_number(v) or not np.isfinite(v):
                 raise ValueError(f"{name}={v!r}: must be a finite number")
         # the bank holds a BFS distance field (int16 per cell) for every goal of every layout
         cells = self.size * self.size
@@ -116,16 +128,6 @@ MAX_BANK_GIB = 2
 
 def default_config() -> GridMazeConfig:
     return GridMazeConfig()
-
-
-def _is_number(v: Any) -> bool:
-    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
-
-
-def check_int(cfg: Any, name: str, lo: int, hi: int) -> None:
-    v = getattr(cfg, name)
-    if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or not lo <= v <= hi:
-        raise ValueError(f"{name}={v!r}: must be an integer in [{lo}, {hi}]")
 
 
 # ---------------------------------------------------------------------------- layouts
@@ -157,62 +159,7 @@ def generate_layouts(size: int, density: float, num: int, seed: int) -> np.ndarr
     order = np.argsort(rng.random((num, cells)), axis=1)
     obstacles = np.zeros((num, cells), dtype=bool)
     np.put_along_axis(obstacles, order[:, :k], True, axis=1)
-    return fill_pockets(obstacles.reshape(num, size, size))
-
-
-def fill_pockets(obstacles: np.ndarray) -> np.ndarray:
-    num, h, w = obstacles.shape
-    free = ~obstacles
-    label = np.where(free, np.arange(1, h * w + 1).reshape(1, h, w), 0)
-    while True:  # propagate the largest cell label through each connected region
-        p = np.pad(label, ((0, 0), (1, 1), (1, 1)))
-        nb = np.maximum.reduce(
-            [label, p[:, :-2, 1:-1], p[:, 2:, 1:-1], p[:, 1:-1, :-2], p[:, 1:-1, 2:]]
-        )
-        new = np.where(free, nb, 0)
-        if np.array_equal(new, label):
-            break
-        label = new
-    flat = label.reshape(num, -1)
-    counts = np.zeros((num, h * w + 1), dtype=np.int64)
-    np.add.at(counts, (np.repeat(np.arange(num), h * w), flat.ravel()), 1)
-    counts[:, 0] = 0
-    largest = counts.argmax(axis=1)
-    return label != largest[:, None, None]
-
-
-def distance_field(obstacles: jax.Array, source: jax.Array) -> jax.Array:
-    """BFS steps from ``source`` (row, col) to every cell; -1 for obstacles and unreachable."""
-    h, w = obstacles.shape
-    far = h * w
-    free = jnp.logical_not(obstacles)
-    dist = jnp.full((h, w), far, jnp.int32).at[source[0], source[1]].set(0)
-    dist = jnp.where(free, dist, far)
-
-    def relax(carry):
-        d, _ = carry
-        p = jnp.pad(d, 1, constant_values=far)
-        nb = jnp.minimum(
-            jnp.minimum(p[:-2, 1:-1], p[2:, 1:-1]), jnp.minimum(p[1:-1, :-2], p[1:-1, 2:])
-        )
-        new = jnp.where(free, jnp.minimum(d, nb + 1), far)
-        return new, jnp.any(new != d)
-
-    dist, _ = jax.lax.while_loop(lambda c: c[1], relax, (dist, jnp.asarray(True)))
-    return jnp.where(dist >= far, UNREACHABLE, dist)
-
-
-def shortest_path_length(obstacles: jax.Array, start: jax.Array, goal: jax.Array) -> jax.Array:
-    """BFS length of the shortest path from ``start`` to ``goal``; -1 if there is none."""
-    return distance_field(obstacles, goal)[start[0], start[1]]
-
-
-@jax.jit
-def bank_distances(obstacles: jax.Array, goals: jax.Array) -> jax.Array:
-    """int16[B, G, h, w] BFS steps from each of ``goals[B, G, 2]`` (row, col) in its layout
-    ``obstacles[B, h, w]``; -1 at obstacles and unreachable cells."""
-    per_layout = jax.vmap(distance_field, in_axes=(None, 0))
-    return jax.vmap(per_layout)(obstacles, goals).astype(jnp.int16)
+    return fill_pockets(obstacles.reshape(num, size, size), ties="last")
 
 
 def build_bank(cfg: GridMazeConfig) -> LayoutBank:
@@ -304,13 +251,14 @@ class GridMazeState(EnvState):
     shortest_path: jax.Array  # int32 BFS length from the episode's start to the goal
 
 
-@struct.dataclass
+@struct.dataclass(kw_only=True)
 class GridMazeParams(EnvParams):
-    max_steps_in_episode: int = 60
-    goal_reward: float = 4.0
-    collision_reward: float = -1.0
-    step_reward: float = 0.0
-    bank: LayoutBank | None = None
+    """The config's rewards (``EnvParams.from_config``) and the layout bank."""
+
+    goal_reward: float
+    collision_reward: float
+    step_reward: float
+    bank: LayoutBank
 
 
 class GridMaze(Environment[GridMazeState, GridMazeParams]):
@@ -319,22 +267,15 @@ class GridMaze(Environment[GridMazeState, GridMazeParams]):
     stochastic_step = False  # moves are deterministic
 
     def __init__(self, config: GridMazeConfig | None = None, name: str = "GridMaze-v0"):
+        """``config`` as ``jaxnav.make`` validated it (or the default one)."""
         self.config = default_config() if config is None else config
-        self.config.validate()
         self.name = name
         self.size = self.config.size
         self._bank = build_bank(self.config)
 
     @property
     def default_params(self) -> GridMazeParams:
-        c = self.config
-        return GridMazeParams(
-            max_steps_in_episode=c.max_steps,
-            goal_reward=c.goal_reward,
-            collision_reward=c.collision_reward,
-            step_reward=c.step_reward,
-            bank=self._bank,
-        )
+        return GridMazeParams.from_config(self.config, bank=self._bank)
 
     @property
     def num_actions(self) -> int:
@@ -421,8 +362,15 @@ class GridMaze(Environment[GridMazeState, GridMazeParams]):
         )
         return self.get_obs(state, params), state
 
+    def reset_to_args(self, state: GridMazeState) -> tuple[jax.Array, jax.Array, jax.Array]:
+        """The robot's cell, the goal's cell and the layout, as ``reset_to`` takes them."""
+        return state.pos, state.goal, state.layout
+
     def num_layouts(self, params: GridMazeParams) -> int:
         return params.bank.num_layouts
+
+    def layouts_from(self, params: GridMazeParams, first: int) -> GridMazeParams:
+        return params.replace(bank=jax.tree.map(lambda x: x[first:], params.bank))
 
     def layout_index(self, state: GridMazeState) -> jax.Array:
         return state.layout
@@ -453,6 +401,27 @@ class GridMaze(Environment[GridMazeState, GridMazeParams]):
         }
         reward = r_goal + r_collision + r_step
         return self.get_obs(state, params), state, reward, at_goal | blocked, info
+
+    def scene(
+        self, params: GridMazeParams, states: GridMazeState, ranges: np.ndarray
+    ) -> dict[str, np.ndarray]:
+        """Cells of side 1 (cell (row, col) has its centre at (col + 0.5, size - row - 0.5)),
+        the obstacles as unit squares; no heading, no sensors to draw."""
+        size = self.size
+        to_xy = lambda rc: np.stack([rc[..., 1] + 0.5, size - rc[..., 0] - 0.5], -1)  # noqa: E731
+        blocked = np.argwhere(np.asarray(params.bank.obstacles[int(states.layout[0])]))
+        cells = to_xy(blocked) - 0.5
+        return {
+            "xy": to_xy(states.pos).astype(np.float32),
+            "heading": np.zeros(len(states.pos), np.float32),
+            "lasers": ranges,
+            "laser_angles": np.zeros(0, np.float32),
+            "goal": to_xy(states.goal[0]).astype(np.float32),
+            "walls": np.concatenate([cells, np.ones_like(cells)], axis=1).astype(np.float32),
+            "arena": np.array([size, size], np.float32),
+            "goal_radius": np.float32(0.4),
+            "radius": np.float32(0.3),
+        }
 
     # -- observation --------------------------------------------------------------
     def _moves_blocked(self, params: GridMazeParams, state: GridMazeState) -> jax.Array:

@@ -1,4 +1,5 @@
-"""Vectorized evaluation of a policy over fresh episodes."""
+"""Vectorized evaluation of a policy over fresh episodes, statistics over seeds and their
+tables. ``python -m jaxnav.evaluate`` (``__main__.py``) is the command line over it."""
 
 from __future__ import annotations
 
@@ -70,9 +71,10 @@ def play(
     bank layout), ``shortest_path`` (``env.shortest_path_length`` at the start, -1 where not
     known) and ``path_length`` (the sum of ``env.step_length`` over the episode).
 
-    Steps without auto-reset: an ended episode's state stays as it ended, so ``record=True``
-    also returns ``"states"``, the batch's states before the first step and after each one
-    (leading axis ``max_steps + 1``), the final pose included.
+    Steps without auto-reset (``env.step_no_reset``, the time limit of ``env.step``): an ended
+    episode's state stays as it ended, so ``record=True`` also returns ``"states"``, the
+    batch's states before the first step and after each one (leading axis ``max_steps + 1``),
+    the final pose included.
     """
     num_episodes = obs.shape[0]
     shortest = jax.vmap(env.shortest_path_length, in_axes=(0, None))(state, params)
@@ -89,10 +91,9 @@ def play(
         obs, state, ended, ret, steps, path, success, collision, timeout = carry
         k_pol, k_env = jax.random.split(key)
         action = policy(k_pol, obs)
-        new_obs, new_state, reward, terminated, info = jax.vmap(
-            env.step_env, in_axes=(0, 0, 0, None)
+        new_obs, new_state, reward, terminated, truncated, info = jax.vmap(
+            env.step_no_reset, in_axes=(0, 0, 0, None)
         )(jax.random.split(k_env, num_episodes), state, action, params)
-        truncated = (new_state.time >= params.max_steps_in_episode) & ~terminated
         live = ~ended
         ret = ret + jnp.where(live, reward, 0.0)
         steps = steps + live
@@ -272,6 +273,17 @@ def bootstrap_ci(
     return float(lo), float(hi)
 
 
+def t_interval(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mean over axis 0 (seeds) and the half-width of its 95% t-interval (0 for one seed)."""
+    from scipy import stats  # only where an interval is drawn: it is slow to import
+
+    n = x.shape[0]
+    mean = x.mean(axis=0)
+    if n < 2:
+        return mean, np.zeros_like(mean)
+    return mean, stats.t.ppf(0.975, n - 1) * x.std(axis=0, ddof=1) / np.sqrt(n)
+
+
 def seed_statistics(values: Sequence[float | None]) -> dict[str, Any]:
     """Over seeds: ``seeds`` (values that are numbers), ``mean``, ``iqm`` and their 95%
     bootstrap intervals ``mean_ci95`` / ``iqm_ci95`` (``[lo, hi]``, None for one seed); None
@@ -288,3 +300,52 @@ def seed_statistics(values: Sequence[float | None]) -> dict[str, Any]:
         "iqm_ci95": None if iqm_ci is None else list(iqm_ci),
     }
 
+
+
+# ------------------------------------------------------------------------------- tables
+SEED_STATISTICS = ("success_rate", "worst10_success")  # with IQM and intervals over seeds
+EVAL_COLUMNS = (
+    "success_rate",
+    "collision_rate",
+    "timeout_rate",
+    "worst10_success",
+    "mean_return",
+    "mean_steps",
+    "mean_path_ratio",
+)
+
+
+def format_value(value: float | None, digits: int = 3) -> str:
+    """A table cell: ``n/a`` for a value not measured (None or NaN)."""
+    if value is None or value != value:
+        return "n/a"
+    return f"{value:.{digits}f}"
+
+
+def print_eval_table(env: str, rows: dict[str, dict[str, float | None]]) -> None:
+    """Means over seeds per policy; ``worst10_success`` is the mean success of the 10% of
+    mazes with the lowest success (``worst_fraction_mean``)."""
+    first = next(iter(rows.values()))
+    mazes = first.get("mazes")
+    per = f" over {mazes:.0f} mazes" if mazes is not None and mazes > 1 else ""
+    print(f"\n{env}: {first['episodes']:.0f} episodes per policy{per}")
+    print("| policy | " + " | ".join(EVAL_COLUMNS) + " |")
+    print("|---" * (len(EVAL_COLUMNS) + 1) + "|")
+    for name, r in rows.items():
+        print(f"| {name} | " + " | ".join(format_value(r.get(c)) for c in EVAL_COLUMNS) + " |")
+
+
+def format_interval(stat: dict[str, Any], key: str) -> str:
+    """``0.912 [0.880, 0.940]`` from ``seed_statistics``'s ``key`` and ``key_ci95``."""
+    ci = stat[f"{key}_ci95"]
+    tail = "" if ci is None else f" [{ci[0]:.3f}, {ci[1]:.3f}]"
+    return format_value(stat[key]) + tail
+
+
+def print_seed_statistics(stats: dict[str, dict[str, Any]]) -> None:
+    """Per metric over seeds: mean and IQM with 95% bootstrap intervals, and the seed count."""
+    for metric, st in stats.items():
+        print(
+            f"{metric} over {st['seeds']} seeds: mean {format_interval(st, 'mean')}, "
+            f"IQM {format_interval(st, 'iqm')} (95% bootstrap intervals)"
+        )

@@ -1,7 +1,89 @@
-"""``python -m jaxnav.evaluate``: the command line (``jaxnav.cli``) over this package."""
+"""``python -m jaxnav.evaluate``: a trained run (greedy) or the random agent on fresh episodes,
+written to ``RUN/eval.json`` with the table printed. Bad input is one line on stderr, exit code 2.
+"""
 
+from __future__ import annotations
+
+import argparse
 import sys
+from collections.abc import Sequence
+from pathlib import Path
 
-from jaxnav.cli import evaluate_main
+from jaxnav import run_dir
+from jaxnav.cli import Parser, UsageError, add_env_args, env_from_args, fail
+from jaxnav.evaluate import (
+    SEED_STATISTICS,
+    evaluate_seeds,
+    mean_of,
+    print_eval_table,
+    print_seed_statistics,
+    seed_statistics,
+)
+from jaxnav.programs import enable_compilation_cache
 
-sys.exit(evaluate_main())
+
+def parser() -> argparse.ArgumentParser:
+    p = Parser(
+        prog="python -m jaxnav.evaluate",
+        description="Evaluate a trained run (greedy) or the random agent on fresh episodes.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    p.add_argument("run", type=Path, help="run directory written by jaxnav.train")
+    p.add_argument("--env", help="evaluate on another env id (generalization); default: the run's")
+    add_env_args(p)
+    p.add_argument("--episodes", type=int, default=1000)
+    p.add_argument("--seed", type=int, default=0, help="seed of the test episodes")
+    p.add_argument("--policy", choices=("trained", "random"), default="trained")
+    p.add_argument("--out", type=Path, help="output JSON (default: RUN/eval.json)")
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Evaluate as the flags in ``argv`` (default: the command line's) say; the exit code."""
+    prog = "jaxnav.evaluate"
+    try:
+        args = parser().parse_args(argv)
+        if not 1 <= args.episodes <= 10**7:
+            raise ValueError(f"--episodes {args.episodes}: must be in [1, 10000000]")
+        if args.seed < 0:
+            raise ValueError(f"--seed {args.seed}: must be non-negative")
+        env, overrides = env_from_args(args, args.env)
+        config = run_dir.load_config(args.run)
+        env_kwargs = {**(config.env_kwargs if env is None else {}), **overrides}
+        out = args.out or args.run / "eval.json"
+        if not out.parent.is_dir():
+            raise ValueError(f"--out {out}: directory {out.parent} does not exist")
+        config, trainer, params = run_dir.load_run_on(args.run, env or config.env, env_kwargs)
+    except (UsageError, ValueError, FileNotFoundError) as e:
+        return fail(prog, str(e))
+    enable_compilation_cache()
+    rows = evaluate_seeds(trainer, params, args.episodes, args.seed, args.policy, per_maze=True)
+    mazes = trainer.env.num_layouts(trainer.env_params)
+    stats = {m: seed_statistics([r[m] for r in rows]) for m in SEED_STATISTICS}
+    result = {
+        "run": str(args.run),
+        "env": config.env,
+        "env_kwargs": config.env_kwargs,
+        "policy": args.policy,
+        "episodes": args.episodes,
+        "seed": args.seed,
+        "episodes_per_maze": args.episodes / mazes,
+        **mean_of(rows),
+        "over_seeds": stats,
+        "per_seed": rows,
+    }
+    run_dir.write_json(out, result)
+    print_eval_table(config.env, {args.policy: mean_of(rows)})
+    if args.episodes % mazes:
+        print(
+            f"note: {args.episodes} episodes over {mazes} mazes: round-robin, "
+            f"{args.episodes // mazes} or {args.episodes // mazes + 1} per maze"
+        )
+    if len(rows) > 1:
+        print_seed_statistics(stats)
+    print(f"wrote {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

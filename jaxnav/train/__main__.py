@@ -1,7 +1,332 @@
-"""``python -m jaxnav.train``: the command line (``jaxnav.cli``) over this package."""
+"""``python -m jaxnav.train``: parse the training flags, then train through ``jaxnav.runner``.
 
+Bad input of any kind is one line on stderr naming the value, exit code 2, nothing written.
+Exit codes: 0 done, 2 bad input, 3 diverged (NaN/Inf; the last good checkpoint is kept),
+128 + signal number when stopped by SIGINT (130) or SIGTERM (143) after saving a checkpoint.
+An unfinished run lives in the hidden sibling ``.NAME.partial`` of its ``--out`` and continues
+with ``--resume OUT``; it is renamed to ``OUT`` when complete.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import signal
 import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
 
-from jaxnav.cli import train_main
+import jax
 
-sys.exit(train_main())
+from jaxnav import run_dir, runner, sharding
+from jaxnav.cli import Parser, UsageError, add_env_args, env_from_args, fail, one_line
+from jaxnav.config import MAX_STEPS, TrainConfig
+from jaxnav.presets import train_defaults
+from jaxnav.programs import enable_compilation_cache
+from jaxnav.registration import registered_envs
+from jaxnav.train import Trainer
+
+EXIT_DIVERGED = 3
+CHECKPOINT_FLAGS = ("checkpoint_every", "keep_checkpoints")  # kept by --resume unless given
+
+HELP = {
+    "env": f"environment id ({', '.join(registered_envs())})",
+    "seed": "first seed; seeds are seed .. seed+num_seeds-1",
+    "num_seeds": "seeds trained at once (vmapped in one program)",
+    "total_timesteps": "env steps per seed",
+    "num_envs": "parallel environments per seed",
+    "devices": "devices to shard over, a count or 'all' (of every host): seeds are split "
+    "first, then each seed's envs, with gradients averaged across its devices",
+    "hidden_sizes": "MLP widths, comma separated (the paper's: 512,256,128,64)",
+    "dueling": "dueling heads V + A - mean(A) (paper eq. 7)",
+    "double": "double-DQN targets (paper eq. 6)",
+    "algo": "dqn (the paper's: replay and a target network) or pqn (lambda-returns over "
+    "rollouts of many envs, no replay)",
+    "layer_norm": "LayerNorm before each hidden ReLU (PQN's network)",
+    "compute_dtype": "float32 or bfloat16 matrix products in the hidden layers",
+    "rollout_length": "pqn: env steps of every env per iteration",
+    "num_epochs": "pqn: passes over each rollout",
+    "num_minibatches": "pqn: gradient steps per pass over a rollout",
+    "td_lambda": "pqn: lambda of the lambda-returns",
+    "loss": "huber or mse",
+    "buffer_size": "replay capacity in transitions",
+    "batch_size": "transitions per gradient step",
+    "learning_starts": "env steps of random actions before the first update",
+    "updates_per_iteration": "gradient steps per vectorized env step",
+    "n_step": "n-step returns",
+    "gamma": "discount",
+    "lr": "learning rate at the start",
+    "lr_end": "learning rate at the end (linear decay)",
+    "optimizer": "adam or sgd",
+    "max_grad_norm": "global-norm gradient clipping",
+    "target_update_period": "env steps between target-network updates",
+    "tau": "target update weight (1 = hard copy)",
+    "eps_start": "exploration epsilon at the start",
+    "eps_end": "exploration epsilon after eps_decay_steps",
+    "eps_decay_steps": "env steps of linear epsilon decay",
+    "log_interval": "env steps per metrics row and progress line",
+    "eval_episodes": "greedy evaluation episodes at the end",
+}
+
+
+def _bool(text: str) -> bool:
+    t = text.lower()
+    if t in ("true", "1", "yes", "on"):
+        return True
+    if t in ("false", "0", "no", "off"):
+        return False
+    raise argparse.ArgumentTypeError(f"invalid boolean {text!r} (use true or false)")
+
+
+def _int_list(text: str) -> tuple[int, ...]:
+    try:
+        return tuple(int(x) for x in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"invalid list of integers {text!r}") from None
+
+
+def _devices(text: str) -> int | str:
+    if text == "all":
+        return text  # resolved to jax.device_count() once the backend (and hosts) are up
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"invalid device count {text!r} (a number or all)"
+        ) from None
+
+
+class _DefaultsShown(argparse.ArgumentDefaultsHelpFormatter):
+    """Shows defaults, except None ones (training flags spell out their env-dependent default)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        if action.default is None:
+            return action.help
+        return super()._get_help_string(action)
+
+
+def parser() -> argparse.ArgumentParser:
+    p = Parser(
+        prog="python -m jaxnav.train",
+        description="Train a (dueling, double) DQN or a PQN; all seeds and the whole run are one "
+        "program.",
+        formatter_class=_DefaultsShown,
+    )
+    defaults = TrainConfig()
+    env_defaults = {
+        "robot envs": train_defaults("RobotSimple-v0"),
+        "--algo pqn": train_defaults("GridMaze-v0", "pqn"),
+        "--algo pqn on robot envs": train_defaults("RobotSimple-v0", "pqn"),
+        "--algo pqn on RobotNav-v0": train_defaults("RobotNav-v0", "pqn"),
+    }
+    for f in dataclasses.fields(TrainConfig):
+        if f.name == "env_kwargs":
+            continue
+        default = getattr(defaults, f.name)
+        flag = "--" + f.name.replace("_", "-")
+        if isinstance(default, bool):
+            kind, meta = _bool, "{true,false}"
+        elif isinstance(default, tuple):
+            kind, meta, default = _int_list, "W,W,...", ",".join(map(str, default))
+        elif f.name == "devices":
+            kind, meta = _devices, "{N,all}"
+        else:
+            kind, meta = type(default), None
+        shown = f"default: {default}" + "".join(
+            f"; {env}: {tuned[f.name]}" for env, tuned in env_defaults.items() if f.name in tuned
+        )
+        # None = not given: the env's tuned default (TrainConfig.for_env) fills it in
+        help_text = f"{HELP[f.name]} ({shown})" if f.name in HELP else f"({shown})"
+        p.add_argument(flag, type=kind, default=None, metavar=meta, help=help_text)
+    add_env_args(p)
+    p.add_argument("--out", type=Path, help="run directory (default: runs/<env>-<time>)")
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.add_argument(
+        "--resume",
+        type=Path,
+        metavar="OUT",
+        help="continue the unfinished run OUT from its latest checkpoint (bitwise the same "
+        "result); other training flags must be left out or match the run's",
+    )
+    p.add_argument(
+        "--checkpoint-every",
+        type=int,
+        default=80_000,
+        metavar="STEPS",
+        help="env steps between checkpoints of the full training state (rounded to logging "
+        "intervals; one is also saved at the end and on SIGINT/SIGTERM)",
+    )
+    p.add_argument(
+        "--keep-checkpoints", type=int, default=2, metavar="K", help="newest checkpoints kept"
+    )
+    hosts = p.add_argument_group(
+        "several hosts (README: Several devices and hosts); run the same command on every "
+        "host with its own --process-id, an --out all of them can read, and --devices all"
+    )
+    hosts.add_argument("--coordinator", metavar="HOST:PORT", help="process 0's address")
+    hosts.add_argument("--num-processes", type=int, metavar="N", help="processes in the run")
+    hosts.add_argument("--process-id", type=int, metavar="I", help="this process, 0 .. N-1")
+    return p
+
+
+def start_hosts(args: argparse.Namespace) -> None:
+    """Start a run over several processes when ``--coordinator`` is given (before anything
+    else touches the JAX backend); ``UsageError`` for an incomplete or impossible set of flags."""
+    flags = {"--coordinator": args.coordinator, "--num-processes": args.num_processes}
+    flags["--process-id"] = args.process_id
+    if all(v is None for v in flags.values()):
+        return
+    missing = [k for k, v in flags.items() if v is None]
+    if missing:
+        raise UsageError(f"{', '.join(missing)} missing: the three host flags go together")
+    if not 1 <= args.num_processes <= 4096:
+        raise UsageError(f"--num-processes {args.num_processes}: must be in [1, 4096]")
+    if not 0 <= args.process_id < args.num_processes:
+        raise UsageError(
+            f"--process-id {args.process_id}: must be in [0, {args.num_processes - 1}]"
+        )
+    if args.resume is None and args.out is None:
+        raise UsageError("--out is needed with several processes: all of them write one run")
+    host, _, port = args.coordinator.rpartition(":")
+    if not host or not port.isdigit():
+        raise UsageError(f"--coordinator {args.coordinator!r}: use HOST:PORT")
+    runner.start_hosts(args.coordinator, args.num_processes, args.process_id)
+
+
+def config_from_args(args: argparse.Namespace) -> TrainConfig:
+    """The flags given (not None) over the env's tuned defaults over TrainConfig's."""
+    values = {}
+    for f in dataclasses.fields(TrainConfig):
+        v = getattr(args, f.name, None)
+        if f.name != "env_kwargs" and v is not None:
+            values[f.name] = _int_list(v) if f.name == "hidden_sizes" and isinstance(v, str) else v
+    if values.get("devices") == "all":
+        values["devices"] = jax.device_count()
+    env, values["env_kwargs"] = env_from_args(args, values.pop("env", None))
+    return TrainConfig.for_env(env or "GridMaze-v0", **values)
+
+
+def prepare_training(
+    argv: list[str],
+) -> tuple[argparse.Namespace, TrainConfig, Path, Path, Trainer]:
+    """``(args, config, out, partial, trainer)``: every check ``main`` makes before it
+    writes or compiles anything; ``UsageError`` or ``ValueError`` (one line) on bad input."""
+    try:
+        return _prepare_training(argv)
+    except ValueError as e:
+        raise ValueError(one_line(str(e))) from None
+
+
+def _prepare_training(
+    argv: list[str],
+) -> tuple[argparse.Namespace, TrainConfig, Path, Path, Trainer]:
+    args = parser().parse_args(argv)
+    start_hosts(args)
+    if args.resume is not None:
+        out, partial, config = resumable_run(args, argv)
+    else:
+        config = config_from_args(args)
+        config.validate()
+        out = args.out or Path("runs") / f"{config.env}-{time.strftime('%Y%m%d-%H%M%S')}"
+        partial = run_dir.partial_dir(out)
+        if runner.is_primary():
+            run_dir.check_writable(out)
+    if not 1 <= args.checkpoint_every <= MAX_STEPS:
+        raise ValueError(f"--checkpoint-every {args.checkpoint_every}: must be in [1, {MAX_STEPS}]")
+    if not 1 <= args.keep_checkpoints <= 1000:
+        raise ValueError(f"--keep-checkpoints {args.keep_checkpoints}: must be in [1, 1000]")
+    return args, config, out, partial, Trainer(config)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Train as the flags in ``argv`` (default: the command line's) say; the exit code."""
+    prog = "jaxnav.train"
+    t_start = time.perf_counter()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    try:
+        args, config, out, partial, trainer = prepare_training(argv)
+    except (UsageError, ValueError) as e:
+        return fail(prog, str(e))
+    progress = runner.Progress(config, args.quiet or not runner.is_primary())
+
+    enable_compilation_cache()
+    steps_per_log = config.steps_per_log
+    every = max(1, round(args.checkpoint_every / steps_per_log))
+    saving = runner.Saving(partial, every, args.keep_checkpoints)
+    checkpointing = {k: getattr(args, k) for k in CHECKPOINT_FLAGS}
+    runner.open_run(trainer, partial, checkpointing if args.resume is None else None)
+    resume = f"python -m jaxnav.train --resume {out}"
+    runner.print_primary(
+        f"training {config.env} for {config.total_timesteps:,} steps x {config.num_seeds} "
+        f"seed(s), {config.num_envs} envs each on {config.devices} device(s) -> {out}\n"
+        f"checkpoint every {every * steps_per_log:,} env steps in {partial}; "
+        f"if stopped, continue with: {resume}",
+        flush=True,
+    )
+    with runner.stop_on_signals(saving.signals):
+        try:
+            state, metrics, compile_s, train_s = runner.train_seeds(
+                trainer, run_dir.seed_keys(config), progress, saving
+            )
+        except runner.Interrupted as e:
+            steps, signum = e.args  # signum: another host's, when this one got none
+            name = signal.Signals(signum).name
+            print(
+                f"{prog}: stopped by {name} at env step {steps:,} (checkpoint saved); "
+                f"continue with: {resume}",
+                file=sys.stderr,
+            )
+            return 128 + signum
+        except runner.Diverged as e:
+            print(f"{prog}: diverged: {e}", file=sys.stderr)
+            return EXIT_DIVERGED
+        except ValueError as e:  # a checkpoint that does not restore
+            return fail(prog, str(e))
+        # a signal from here on is let be: the trained run is complete in seconds
+        params = sharding.to_host(state.params)
+        if runner.is_primary():
+            times = (compile_s, train_s, t_start)
+            runner.finish_run(trainer, params, metrics, progress, partial, out, times)
+    return 0
+
+
+def resumable_run(args: argparse.Namespace, argv: list[str]) -> tuple[Path, Path, TrainConfig]:
+    """``(out, partial, config)`` of the unfinished run ``--resume`` names; ``ValueError``
+    if there is none or a training flag given now differs from the run's config."""
+    out, partial = run_dir.find_unfinished(args.resume)
+    if args.out is not None:
+        raise ValueError(f"--out {args.out}: --resume continues the run in place; leave --out out")
+    saved = run_dir.load_config(partial)
+    # flags given on this command line (argparse keeps values already in the namespace)
+    given = vars(parser().parse_args(argv, argparse.Namespace(**dict.fromkeys(vars(args)))))
+    given = {k: v for k, v in given.items() if v is not None}
+    saved_flags = run_dir.load_checkpointing(partial)
+    for name in CHECKPOINT_FLAGS:
+        setattr(args, name, given.get(name, saved_flags.get(name, getattr(args, name))))
+    asked = config_from_args(argparse.Namespace(**{**vars(args), **_as_args(saved), **given}))
+    differ = [
+        f.name
+        for f in dataclasses.fields(TrainConfig)
+        if getattr(asked, f.name) != getattr(saved, f.name)
+    ]
+    if differ:
+        was = ", ".join(f"{n}={getattr(saved, n)!r}" for n in differ)
+        now = ", ".join(f"{n}={getattr(asked, n)!r}" for n in differ)
+        raise ValueError(
+            f"--resume {args.resume}: the run was started with {was}, not {now}; "
+            "leave these flags out to resume it"
+        )
+    return out, partial, saved
+
+
+def _as_args(config: TrainConfig) -> dict[str, Any]:
+    """``config`` as the namespace values of ``parser`` (its inverse is config_from_args)."""
+    values = {f.name: getattr(config, f.name) for f in dataclasses.fields(TrainConfig)}
+    values["env_arg"] = list(values.pop("env_kwargs").items())
+    return values
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -66,7 +66,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
-from typing import Any
+from typing import Any, ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -93,6 +93,12 @@ _UNREACHABLE = -1e15  # where inactive wall slots go for the collision test (squ
 @dataclasses.dataclass(frozen=True)
 class RobotConfig:
     """Everything that defines a robot env; ``jaxnav.make(id, **overrides)`` replaces fields."""
+
+    # the fields that choose the mazes (a policy tested on other mazes keeps the rest)
+    MAZE_FIELDS: ClassVar[frozenset[str]] = frozenset(
+        {"maze", "maze_file", "maze_seed", "num_layouts", "random_size", "num_wall_slots"}
+        | {"families", "num_goal_cells"}
+    )
 
     maze: str = "simple"
     maze_file: str | None = None
@@ -169,14 +175,7 @@ class RobotConfig:
         if not isinstance(self.obs_absolute, (bool, np.bool_)):
             raise ValueError(f"obs_absolute={self.obs_absolute!r}: must be True or False")
         generators.check_families(self.families)
-        for name in (
-            "goal_reward",
-            "collision_reward",
-            "step_reward_start",
-            "step_reward_end",
-            "progress_reward",
-            "clearance_reward",
-        ):
+        for name in (f.name for f in dataclasses.fields(self) if "reward" in f.name):
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v):
                 raise ValueError(f"{name}={v!r}: must be a finite number")
@@ -320,18 +319,19 @@ class RobotState(EnvState):
     frames: jax.Array  # float32[frames, per_frame], oldest first
 
 
-@struct.dataclass
+@struct.dataclass(kw_only=True)
 class RobotParams(EnvParams):
-    max_steps_in_episode: int = 250
-    goal_radius: float = 0.5
-    goal_reward: float = 10.0
-    collision_reward: float = -5.0
-    step_reward_start: float = -0.5
-    step_reward_end: float = -1.0
-    progress_reward: float = 0.0
-    clearance_reward: float = 0.0
-    clearance: float = 0.25
-    bank: mazes.MazeBank | None = None
+    """The config's goal radius and reward terms (``EnvParams.from_config``) and the maze bank."""
+
+    goal_radius: float
+    goal_reward: float
+    collision_reward: float
+    step_reward_start: float
+    step_reward_end: float
+    progress_reward: float
+    clearance_reward: float
+    clearance: float
+    bank: mazes.MazeBank
 
 
 class RobotNav(Environment[RobotState, RobotParams]):
@@ -343,8 +343,8 @@ class RobotNav(Environment[RobotState, RobotParams]):
     batch_reset_fraction = 1 / 16
 
     def __init__(self, config: RobotConfig | None = None, name: str = "RobotSimple-v0"):
+        """``config`` as ``jaxnav.make`` validated it (or the default one)."""
         self.config = default_config() if config is None else config
-        self.config.validate()
         self.name = name
         maze_list = self.config.load_mazes()
         # as many slots as the bank's largest maze needs (at most ``num_wall_slots``): every
@@ -372,19 +372,7 @@ class RobotNav(Environment[RobotState, RobotParams]):
 
     @property
     def default_params(self) -> RobotParams:
-        c = self.config
-        return RobotParams(
-            max_steps_in_episode=c.max_steps,
-            goal_radius=c.goal_radius,
-            goal_reward=c.goal_reward,
-            collision_reward=c.collision_reward,
-            step_reward_start=c.step_reward_start,
-            step_reward_end=c.step_reward_end,
-            progress_reward=c.progress_reward,
-            clearance_reward=c.clearance_reward,
-            clearance=c.clearance,
-            bank=self._bank,
-        )
+        return RobotParams.from_config(self.config, bank=self._bank)
 
     @property
     def num_actions(self) -> int:
@@ -502,9 +490,16 @@ class RobotNav(Environment[RobotState, RobotParams]):
         reward = r_goal + r_collision + r_step + r_progress + r_clearance
         return self.get_obs(state, params), state, reward, at_goal | collided, info
 
+    def reset_to_args(self, state: RobotState) -> tuple[jax.Array, jax.Array, jax.Array]:
+        """The robot's pose, the goal and the maze, as ``reset_to`` takes them."""
+        return state.pose, state.goal, state.layout
+
     # -- evaluation hooks -----------------------------------------------------------
     def num_layouts(self, params: RobotParams) -> int:
         return params.bank.num_mazes
+
+    def layouts_from(self, params: RobotParams, first: int) -> RobotParams:
+        return params.replace(bank=jax.tree.map(lambda x: x[first:], params.bank))
 
     def layout_index(self, state: RobotState) -> jax.Array:
         return state.layout
@@ -524,6 +519,30 @@ class RobotNav(Environment[RobotState, RobotParams]):
     ) -> jax.Array:
         """Metres the robot's centre moved in the step (turns on the spot move it 0)."""
         return jnp.linalg.norm(next_state.pose[:2] - state.pose[:2])
+
+    def sensor_ranges(self, state: RobotState, params: RobotParams) -> jax.Array:
+        """The lasers' ranges in metres (``lasers``)."""
+        return self.lasers(state.pose, state.layout, params)
+
+    def scene(
+        self, params: RobotParams, states: RobotState, ranges: np.ndarray
+    ) -> dict[str, np.ndarray]:
+        """Metres; the maze's active wall boxes (the boundary's included) as rectangles."""
+        layout = int(states.layout[0])
+        walls = jax.tree.map(lambda x: np.asarray(x[layout]), params.bank.walls)
+        act = walls.active
+        corner = walls.center[act] - walls.half_size[act]
+        return {
+            "xy": states.pose[:, :2],
+            "heading": states.pose[:, 2],
+            "lasers": ranges,
+            "laser_angles": np.asarray(self.angles),
+            "goal": states.goal[0],
+            "walls": np.concatenate([corner, 2 * walls.half_size[act]], axis=1),
+            "arena": np.asarray(self.arena, np.float32),
+            "goal_radius": np.float32(params.goal_radius),
+            "radius": np.float32(self.config.radius),
+        }
 
     def _collision_boxes(
         self, params: RobotParams, layout: jax.Array

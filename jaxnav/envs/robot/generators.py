@@ -36,7 +36,8 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from jaxnav.envs.robot.mazes import Maze, check_int, fill_pockets, random_segments
+from jaxnav.envs.maze_algorithms import check_int, fill_pockets
+from jaxnav.envs.robot.mazes import Maze, random_segments
 
 FAMILIES = ("rooms", "corridors", "segments", "pillars")
 ROWS = COLS = 20  # the fine grid: 0.5 m cells over a 10 m arena

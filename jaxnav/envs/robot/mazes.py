@@ -42,7 +42,7 @@ import dataclasses
 import functools
 import math
 import os
-from collections import deque
+import stat
 from collections.abc import Sequence
 from typing import Any
 
@@ -51,7 +51,15 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from jaxnav.envs.grid_maze import bank_distances  # one BFS for both envs
+from jaxnav.envs.maze_algorithms import (
+    Cell,
+    bank_distances,
+    check_int,
+    fill_pockets,
+    is_number,
+    largest_region_cell,
+    region_labels,
+)
 
 WALL, FREE, START, GOAL = "#", ".", "S", "G"
 CELL_CHARS = (WALL, FREE, START, GOAL)
@@ -62,8 +70,6 @@ BOUNDARY_HALF_THICKNESS = 1.0
 # Parked (unused) slots: far outside any arena and tiny.
 PARKED_CENTER = (-1000.0, -1000.0)
 PARKED_HALF_SIZE = (1e-3, 1e-3)
-
-Cell = tuple[int, int]  # (row, col), row 0 at the top
 
 
 class MazeFileError(ValueError):
@@ -160,7 +166,7 @@ class Maze:
         grid.setflags(write=False)
         object.__setattr__(self, "grid", grid)
         cs = self.cell_size
-        if not _is_number(cs) or not math.isfinite(cs) or cs <= 0:
+        if not is_number(cs) or not math.isfinite(cs) or cs <= 0:
             raise ValueError(f"{self.name}: cell_size={cs!r}: must be a positive number (metres)")
         object.__setattr__(self, "cell_size", float(cs))
         for label in ("start", "goal"):
@@ -212,30 +218,10 @@ class Maze:
         """int32[F, 2] all free cells (row, col) in reading order."""
         return np.argwhere(~self.grid).astype(np.int32)
 
-    def bfs_distances(self, source: Cell) -> np.ndarray:
-        """int32[rows, cols] 4-neighbour steps from ``source``; -1 at walls and unreachable."""
-        dist = np.full(self.grid.shape, -1, np.int32)
-        r0, c0 = source
-        if self.grid[r0, c0]:
-            return dist
-        dist[r0, c0] = 0
-        queue = deque([(r0, c0)])
-        while queue:
-            r, c = queue.popleft()
-            for nr, nc in ((r - 1, c), (r + 1, c), (r, c - 1), (r, c + 1)):
-                if (
-                    0 <= nr < self.rows
-                    and 0 <= nc < self.cols
-                    and not self.grid[nr, nc]
-                    and dist[nr, nc] < 0
-                ):
-                    dist[nr, nc] = dist[r, c] + 1
-                    queue.append((nr, nc))
-        return dist
-
     def connected(self, a: Cell, b: Cell) -> bool:
         """Whether free cells ``a`` and ``b`` (row, col) are joined by a 4-neighbour path."""
-        return bool(self.bfs_distances(a)[b[0], b[1]] >= 0)
+        labels = region_labels(self.grid)
+        return bool(labels[a[0], a[1]] and labels[a[0], a[1]] == labels[b[0], b[1]])
 
     def placement_cells(self) -> np.ndarray:
         """int32[F, 2] cells where a robot or goal may be placed, in reading order: the free
@@ -245,10 +231,10 @@ class Maze:
 
     @functools.cached_property  # the grid is immutable; banks ask for this per maze
     def _placement(self) -> np.ndarray:
-        labels = _region_labels(self.grid)
+        labels = region_labels(self.grid)
         anchor = self.start or self.goal
         if anchor is None:
-            anchor = _largest_region_cell(self.grid)
+            anchor = largest_region_cell(self.grid)
         return np.argwhere(labels == labels[anchor]).astype(np.int32)
 
     # -- boxes --------------------------------------------------------------------
@@ -295,10 +281,6 @@ class Maze:
         return f"cell_size: {self.cell_size!r}\n{rows}\n"
 
 
-def _is_number(v: Any) -> bool:
-    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
-
-
 def _merge_runs(grid: np.ndarray) -> np.ndarray:
     """Rectangles (r0, c0, r1, c1): maximal runs of True per row, a run extended downwards
     while the next row has the identical run."""
@@ -321,46 +303,6 @@ def _runs(row: np.ndarray) -> list[tuple[int, int]]:
     padded = np.concatenate([[False], row, [False]]).astype(np.int8)
     edges = np.flatnonzero(np.diff(padded))
     return [(int(a), int(b) - 1) for a, b in zip(edges[::2], edges[1::2], strict=True)]
-
-
-def _largest_region_cell(grid: np.ndarray) -> Cell:
-    """A cell of the largest 4-connected free region (ties: the region met first in reading
-    order); ``ValueError`` if there is no free cell."""
-    labels = _region_labels(grid)
-    if not labels.any():
-        raise ValueError("the maze has no free cell")
-    best = int(np.argmax(np.bincount(labels.ravel())[1:])) + 1  # argmax: first on a tie
-    r, c = np.argwhere(labels == best)[0]
-    return int(r), int(c)
-
-
-def _region_labels(grid: np.ndarray) -> np.ndarray:
-    """int32[rows, cols]: 4-connected free regions numbered 1, 2, ... in reading order of
-    their first cell, 0 at walls. A plain flood fill: each cell is visited once, which beats
-    array-wide label propagation on the small grids used here."""
-    rows, cols = grid.shape
-    wall = grid.ravel().tolist()
-    labels = [0] * (rows * cols)
-    n = 0
-    for seed in range(rows * cols):
-        if wall[seed] or labels[seed]:
-            continue
-        n += 1
-        labels[seed] = n
-        stack = [seed]
-        while stack:
-            i = stack.pop()
-            r, c = divmod(i, cols)
-            for j, ok in (
-                (i - cols, r > 0),
-                (i + cols, r < rows - 1),
-                (i - 1, c > 0),
-                (i + 1, c < cols - 1),
-            ):
-                if ok and not wall[j] and not labels[j]:
-                    labels[j] = n
-                    stack.append(j)
-    return np.array(labels, np.int32).reshape(rows, cols)
 
 
 def check_slots(maze: Maze, num_slots: int) -> None:
@@ -410,8 +352,28 @@ MAX_FILE_BYTES = 1_000_000
 def load_maze(path: str | os.PathLike[str], num_slots: int | None = None) -> Maze:
     """Read a maze file (format in the module docstring); ``MazeFileError`` naming the file,
     line and column if it is unreadable or malformed, or (with ``num_slots``) if its walls do
-    not fit the slots."""
+    not fit the slots. A file read before and unchanged since (the same size and modification
+    time) is not read again: one run validates and builds its env several times."""
     name = os.fspath(path)
+    try:
+        info = os.stat(name)
+    except OSError:
+        info = None  # reading it says why
+    if info is not None and stat.S_ISREG(info.st_mode):
+        maze = _load_file(name, info.st_dev, info.st_ino, info.st_mtime_ns, info.st_size)
+    else:
+        maze = _read_maze(name)
+    if num_slots is not None:
+        check_slots(maze, num_slots)
+    return maze
+
+
+@functools.lru_cache(maxsize=64)  # mazes are immutable; a changed file has another key
+def _load_file(name: str, device: int, inode: int, mtime_ns: int, size: int) -> Maze:
+    return _read_maze(name)
+
+
+def _read_maze(name: str) -> Maze:
     try:
         with open(name, "rb") as f:
             data = f.read(MAX_FILE_BYTES + 1)  # bounded: /dev/zero is not a maze
@@ -425,7 +387,7 @@ def load_maze(path: str | os.PathLike[str], num_slots: int | None = None) -> Maz
         line = data.count(b"\n", 0, e.start) + 1
         col = e.start - (data.rfind(b"\n", 0, e.start) + 1) + 1
         raise MazeFileError(name, "not UTF-8 text", line, col) from e
-    return parse_maze(text, name=name, num_slots=num_slots)
+    return parse_maze(text, name=name)
 
 
 def parse_maze(text: str, name: str = "<string>", num_slots: int | None = None) -> Maze:
@@ -626,9 +588,9 @@ def random_maze_bank(
     check_int("seed", seed, 0)
     if rows * cols < 2:
         raise ValueError(f"rows={rows}, cols={cols}: a maze needs at least 2 cells")
-    if not _is_number(cell_size) or not math.isfinite(cell_size) or cell_size <= 0:
+    if not is_number(cell_size) or not math.isfinite(cell_size) or cell_size <= 0:
         raise ValueError(f"cell_size={cell_size!r}: must be a positive number (metres)")
-    if not _is_number(wall_density) or not 0.0 <= wall_density < 1.0:
+    if not is_number(wall_density) or not 0.0 <= wall_density < 1.0:
         raise ValueError(f"wall_density={wall_density!r}: must be a number in [0, 1)")
     if num_slots is not None:
         check_slots(Maze(np.zeros((rows, cols), bool), cell_size), num_slots)  # validates it
@@ -653,11 +615,6 @@ def random_maze_bank(
     return mazes
 
 
-def check_int(name: str, v: Any, lo: int) -> None:
-    if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
-        raise ValueError(f"{name}={v!r}: must be an integer >= {lo}")
-
-
 def random_segments(
     rng: np.random.Generator, rows: int, cols: int, target: int, max_segment: int
 ) -> np.ndarray:
@@ -671,14 +628,6 @@ def random_segments(
             if rr < rows and cc < cols and grid.sum() < target:  # stop exactly at the target
                 grid[rr, cc] = True
     return grid
-
-
-def fill_pockets(grid: np.ndarray) -> np.ndarray:
-    """Walls plus every free cell outside the largest free region."""
-    if grid.all():
-        return grid
-    labels = _region_labels(grid)
-    return labels != int(np.argmax(np.bincount(labels.ravel())[1:])) + 1
 
 
 # ------------------------------------------------------------------------------ batching

@@ -1,0 +1,124 @@
+"""Maze algorithms both maze envs use (the grid and the robot's): BFS distance fields, in JAX
+so that a whole bank of them is one compiled program; connected free regions
+(``scipy.ndimage.label``); filling the pockets a start or goal could not leave; and the number
+checks of their configs and generators.
+
+A maze here is a bool array of cells, True for a wall (an obstacle), row 0 at the top; two
+free cells are neighbours when they share a side (4-connectivity).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from scipy import ndimage
+
+UNREACHABLE = -1  # the distance of a wall or a cell cut off from the source
+Cell = tuple[int, int]  # (row, col)
+
+
+def is_number(v: Any) -> bool:
+    """A real number (Python's or numpy's), not a bool."""
+    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
+
+
+def check_int(name: str, value: Any, lo: int, hi: int | None = None) -> None:
+    """``ValueError`` naming ``name`` unless ``value`` is an integer (not a bool) in
+    ``[lo, hi]`` (``>= lo`` without ``hi``)."""
+    ok = isinstance(value, (int, np.integer)) and not isinstance(value, bool)
+    if hi is None:
+        if not ok or value < lo:
+            raise ValueError(f"{name}={value!r}: must be an integer >= {lo}")
+    elif not ok or not lo <= value <= hi:
+        raise ValueError(f"{name}={value!r}: must be an integer in [{lo}, {hi}]")
+
+
+# ----------------------------------------------------------------------- distance fields
+def distance_field(walls: jax.Array, source: jax.Array) -> jax.Array:
+    """BFS steps from ``source`` (row, col) to every cell; -1 for walls and unreachable."""
+    h, w = walls.shape
+    far = h * w
+    free = jnp.logical_not(walls)
+    dist = jnp.full((h, w), far, jnp.int32).at[source[0], source[1]].set(0)
+    dist = jnp.where(free, dist, far)
+
+    def relax(carry):
+        d, _ = carry
+        p = jnp.pad(d, 1, constant_values=far)
+        nb = jnp.minimum(
+            jnp.minimum(p[:-2, 1:-1], p[2:, 1:-1]), jnp.minimum(p[1:-1, :-2], p[1:-1, 2:])
+        )
+        new = jnp.where(free, jnp.minimum(d, nb + 1), far)
+        return new, jnp.any(new != d)
+
+    dist, _ = jax.lax.while_loop(lambda c: c[1], relax, (dist, jnp.asarray(True)))
+    return jnp.where(dist >= far, UNREACHABLE, dist)
+
+
+def shortest_path_length(walls: jax.Array, start: jax.Array, goal: jax.Array) -> jax.Array:
+    """BFS length of the shortest path from ``start`` to ``goal``; -1 if there is none."""
+    return distance_field(walls, goal)[start[0], start[1]]
+
+
+@jax.jit
+def bank_distances(walls: jax.Array, sources: jax.Array) -> jax.Array:
+    """int16[B, G, h, w] BFS steps from each of ``sources[B, G, 2]`` (row, col) in its maze
+    ``walls[B, h, w]``; -1 at walls and unreachable cells."""
+    per_maze = jax.vmap(distance_field, in_axes=(None, 0))
+    return jax.vmap(per_maze)(walls, sources).astype(jnp.int16)
+
+
+# ----------------------------------------------------------------------- regions
+def region_labels(walls: np.ndarray) -> np.ndarray:
+    """int32[..., rows, cols]: the connected free regions of each maze (the last two axes)
+    numbered 1, 2, ... in reading order of their first cell, counting on through a batch of
+    mazes; 0 at walls."""
+    walls = np.asarray(walls, bool)
+    flat = walls.reshape(-1, *walls.shape[-2:])
+    structure = np.zeros((3, 3, 3), bool)  # one call for a batch: no link between mazes
+    structure[1] = ndimage.generate_binary_structure(2, 1)  # 4-connectivity
+    labels, _ = ndimage.label(~flat, structure)
+    return labels.astype(np.int32).reshape(walls.shape)
+
+
+def fill_pockets(walls: np.ndarray, ties: str = "first") -> np.ndarray:
+    """Each maze (the last two axes) with every free cell outside its largest connected free
+    region made a wall, so that any two free cells are joined by a path; a maze without free
+    cells stays all walls. Of equally large regions the one kept is, with ``ties="first"``,
+    the one whose first cell comes first in reading order, with ``"last"`` the one whose last
+    cell comes first (GridMaze's layouts have always been drawn so)."""
+    walls = np.asarray(walls, bool)
+    labels = region_labels(walls).reshape(-1, walls.shape[-2] * walls.shape[-1])
+    num = int(labels.max())
+    if num == 0:
+        return walls.copy()
+    ids = np.arange(1, num + 1)
+    count = np.bincount(labels.ravel(), minlength=num + 1)[1:]
+    # labels run on through the batch: maze i holds those above the previous mazes' largest
+    maze = np.searchsorted(np.maximum.accumulate(labels.max(axis=1)), ids)
+    if ties == "first":
+        key = ids
+    elif ties == "last":
+        cells = np.broadcast_to(np.arange(labels.shape[1]), labels.shape)
+        key = ndimage.maximum(cells, labels, ids)
+    else:
+        raise ValueError(f"ties={ties!r}: must be 'first' or 'last'")
+    order = np.lexsort((key, -count, maze))  # per maze: largest first, then the tie rule
+    first = np.r_[True, np.diff(maze[order]) != 0]
+    keep = np.zeros(len(labels), labels.dtype)
+    keep[maze[order][first]] = ids[order][first]
+    out = labels != keep[:, None]
+    out[keep == 0] = True  # no free cell
+    return out.reshape(walls.shape)
+
+
+def largest_region_cell(walls: np.ndarray) -> Cell:
+    """The first cell, in reading order, of the largest connected free region of ``walls``
+    (of equally large ones, the one met first); ``ValueError`` if there is no free cell."""
+    kept = np.argwhere(~fill_pockets(walls))
+    if not len(kept):
+        raise ValueError("the maze has no free cell")
+    return int(kept[0, 0]), int(kept[0, 1])
