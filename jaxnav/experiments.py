@@ -508,9 +508,7 @@ def evaluate_family(
     if rows:
         means = mean_of([{k: v for k, v in r.items() if k != "run"} for r in rows])
         out["mean"] = {m: means[m] for m in GENERALIZATION_METRICS}
-        out["over_seeds"] = {
-            m: seed_statistics([r[m] for r in rows]) for m in SEED_STATISTICS
-        }
+        out["over_seeds"] = {m: seed_statistics([r[m] for r in rows]) for m in SEED_STATISTICS}
     out["per_seed"] = rows
     return out
 
@@ -549,6 +547,23 @@ def generalization_markdown(results: dict[str, Any]) -> str:
     return "".join(lines)
 
 
+def trajectories_gif(run: Path, family: Family, episodes: int, seed: int, path: Path) -> str:
+    """Record ``episodes`` greedy episodes of the run's first seed on ``family`` (test key
+    ``seed``) into the GIF ``path``; returns one line per episode's outcome."""
+    from jaxnav import render  # matplotlib only once there is something to draw
+
+    env_id, kwargs = family.for_run(run_dir.load_config(run))
+    config, trainer, params = run_dir.load_run_on(run, env_id, kwargs)
+    policy = trainer.greedy_policy(jax.tree.map(lambda x: x[0], params))
+    env, env_params = trainer.env, trainer.env_params
+    keys = jax.random.split(jax.random.key(seed), episodes)
+    obs, state = jax.vmap(env.reset, in_axes=(0, None))(keys, env_params)
+    recorded = render.record(env, env_params, policy, obs, state)
+    title = f"{family.name}: greedy policy of {run.name} (seed {config.seed})"
+    render.save_gif(recorded, path, title=title)
+    return "; ".join(render.describe(ep) for ep in recorded)
+
+
 def generalization_main(args: argparse.Namespace, command: str) -> int:
     """``generalization``: evaluate the runs on each family and write results.json/.md."""
     prog = "jaxnav.experiments"
@@ -557,6 +572,8 @@ def generalization_main(args: argparse.Namespace, command: str) -> int:
             raise ValueError(f"--episodes {args.episodes}: must be in [1, 10000000]")
         if args.seed < 0:
             raise ValueError(f"--seed {args.seed}: must be non-negative")
+        if not 0 <= args.gifs <= 16:
+            raise ValueError(f"--gifs {args.gifs}: must be in [0, 16]")
         configs = [run_dir.load_config(run) for run in args.runs]
         if args.family:
             families = [parse_family(f) for f in args.family]
@@ -585,6 +602,12 @@ def generalization_main(args: argparse.Namespace, command: str) -> int:
     table = generalization_markdown(results)
     (out / "results.md").write_text(table)
     print(table)
+    for fam in families:  # trajectories on each hand-drawn maze, where the run fits it
+        maze_file = fam.env_kwargs.get("maze_file")
+        if args.gifs and maze_file and results["families"][fam.name]["seeds"]:
+            path = out / f"trajectories-{Path(maze_file).stem}.gif"
+            outcomes = trajectories_gif(args.runs[0], fam, args.gifs, args.seed, path)
+            print(f"wrote {path}: {outcomes}")
     print(f"results in {out}")
     return 0
 
@@ -650,6 +673,12 @@ def parser() -> argparse.ArgumentParser:
     )
     gen.add_argument("--episodes", type=int, default=1000, help="episodes per family and seed")
     gen.add_argument("--seed", type=int, default=0, help="seed of the test episodes")
+    gen.add_argument(
+        "--gifs",
+        type=int,
+        default=4,
+        help="episodes in a trajectory GIF per maze-file family (first run, first seed; 0: none)",
+    )
     gen.add_argument("--out", type=Path, help="results directory (default: runs/<name>-<time>)")
     plot = sub.add_parser("plot", help="redraw the figures of a results directory")
     plot.add_argument("dir", type=Path)

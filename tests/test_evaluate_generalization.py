@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -230,8 +231,11 @@ def test_evaluate_cli_prints_worst_ten_percent_per_maze(robot_run, tmp_path, cap
 
 def test_generalization_writes_a_table_per_family(robot_run, tmp_path, capsys):
     out = tmp_path / "gen"
-    families = ["own num_layouts=3", "RobotSimple-v0", "GridMaze-v0"]  # the grid does not fit
-    args = ["generalization", str(robot_run), "--episodes", "6", "--out", str(out)]
+    rooms = Path(__file__).parents[1] / "examples" / "mazes" / "rooms.txt"
+    maze = f"RobotMaze-v0 maze_file={rooms} num_wall_slots=64"
+    # the grid does not fit
+    families = ["own num_layouts=3", "RobotSimple-v0", "GridMaze-v0", maze]
+    args = ["generalization", str(robot_run), "--episodes", "6", "--gifs", "2", "--out", str(out)]
     args += [a for f in families for a in ("--family", f)]
     assert experiments_main(args) == 0
     results = json.loads((out / "results.json").read_text())
@@ -246,4 +250,11 @@ def test_generalization_writes_a_table_per_family(robot_run, tmp_path, capsys):
     assert grid["seeds"] == 0 and grid["skipped"]
     table = (out / "results.md").read_text()
     assert "worst-10% success" in table and "| RobotSimple-v0 | 2 | 1 |" in table
-    assert "success IQM" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "success IQM" in printed
+    # a trajectory GIF on the hand-drawn maze (only there), two episodes with their outcomes
+    gifs = sorted(p.name for p in out.glob("*.gif"))
+    assert gifs == ["trajectories-rooms.gif"]
+    assert (out / gifs[0]).read_bytes()[:6] == b"GIF89a"
+    line = next(x for x in printed.splitlines() if "trajectories-rooms.gif" in x)
+    assert line.count(";") == 1  # two episodes described
