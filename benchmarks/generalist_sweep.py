@@ -173,11 +173,15 @@ def run_row(index: int, episodes: int) -> dict[str, Any]:
         "RobotNav-v0", algo="pqn", env_kwargs=env_kwargs, eval_episodes=0, **overrides
     )
     trainer = Trainer(config)
-    train = jax.jit(trainer.train)
+    # vmapped over a batch of one key, as the training CLI compiles it: 1.43x as fast as
+    # jit(train) on one H100 (benchmarks/results/train_vmap_h100.md); rows 0-19 used jit(train)
+    train = jax.jit(jax.vmap(trainer.train))
+    keys = jax.random.key(0)[None]
     t0 = time.perf_counter()
-    compiled = train.lower(jax.random.key(0)).compile()
+    compiled = train.lower(keys).compile()
     t1 = time.perf_counter()
-    state, metrics = jax.block_until_ready(compiled(jax.random.key(0)))
+    state, metrics = jax.block_until_ready(compiled(keys))
+    state, metrics = jax.tree.map(lambda x: x[0], (state, metrics))
     t2 = time.perf_counter()
     steps = int(metrics["env_steps"][-1])
     row: dict[str, Any] = {
