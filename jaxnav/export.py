@@ -33,9 +33,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxnav import __version__, run_dir
-from jaxnav.agents.dqn import QNetwork
+from jaxnav.agents.dqn import QNetwork, check_input_fits
 from jaxnav.config import TrainConfig
-from jaxnav.deploy.policy import FORMAT, FORMAT_VERSION
+from jaxnav.deploy.policy import FORMAT, FORMAT_VERSION, Policy
 from jaxnav.envs import grid_maze
 from jaxnav.envs.robot import env as robot_env
 
@@ -308,6 +308,34 @@ def flax_params(arrays: dict[str, np.ndarray], network: dict[str, Any]) -> dict[
     else:
         p[f"Dense_{n}"] = {"kernel": arrays["head_kernel"], "bias": arrays["head_bias"]}
     return {"params": jax.tree.map(jnp.asarray, p)}
+
+
+def to_trainer(
+    policy: Policy, env_id: str | None = None, env_kwargs: dict[str, Any] | None = None
+) -> tuple[Any, Any]:
+    """``(trainer, params)`` to run an exported policy in the simulator with JAX
+    (``jaxnav.evaluate``, ``jaxnav.render``): its network on its env (or ``env_id`` with exactly
+    ``env_kwargs``), the parameters stacked as one seed's; ``ValueError`` where that env's
+    observations do not fit the network."""
+    from jaxnav.train import Trainer
+
+    meta, net = policy.metadata, policy.network
+    env_id = meta["env_id"] if env_id is None else env_id
+    kwargs = dict(meta["env_kwargs"] if env_kwargs is None else env_kwargs)
+    # the network as trained; TrainConfig's defaults for the rest, which acting never reads
+    config = TrainConfig(
+        env=env_id,
+        env_kwargs=kwargs,
+        hidden_sizes=tuple(net["hidden_sizes"]),
+        dueling=net["dueling"],
+        layer_norm=net["layer_norm"],
+    )
+    trainer = Trainer(config)
+    onehot = net["onehot_sizes"]
+    want = (net["obs_size"], None if onehot is None else tuple(onehot))
+    check_input_fits(env_id, trainer.network_input, want)
+    params = flax_params(policy.arrays, net)
+    return trainer, jax.tree.map(lambda x: x[None], params)
 
 
 # ------------------------------------------------------------------ ONNX
