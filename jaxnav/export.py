@@ -47,6 +47,7 @@ METADATA_KEY = "jaxnav"
 
 
 # ------------------------------------------------------------------ observation layout
+MOVES = ("up", "down", "left", "right")  # GridMaze's actions, in order
 def _entry(name: str, scale: float = 1.0, clip: Sequence[float] | None = None, **more: Any):
     return {"name": name, "scale": scale, "clip": None if clip is None else list(clip), **more}
 
@@ -108,7 +109,7 @@ def grid_layout(env: grid_maze.GridMaze, params: grid_maze.GridMazeParams) -> li
     (row 0 at the top), ``blocked_*`` 1 where that move collides (an obstacle or the edge)."""
     s, mode = env.size, env.config.obs_mode
     inv = 1.0 / max(s - 1, 1)
-    moves = ("up", "down", "left", "right")
+    moves = MOVES
     if mode == "paper":
         obstacles = params.bank.obstacle_cells.shape[1]
         entries = [_entry(n, inv) for n in ("robot_x", "robot_y", "goal_x", "goal_y")]
@@ -131,17 +132,28 @@ def grid_layout(env: grid_maze.GridMaze, params: grid_maze.GridMazeParams) -> li
 
 
 GRID_QUANTITIES = {
-    "robot_row": "the robot's row (0 at the top); a category of `categories` values",
-    "robot_row_is": "1 where the robot's row is `category`",
-    "blocked_up": "1 where moving up collides (an obstacle or the grid's edge)",
+    **{
+        f"{who}_{axis}": f"the {who}'s {name} (0 at the {edge}), a category"
+        for who in ("robot", "goal")
+        for axis, name, edge in (("row", "row", "top"), ("col", "column", "left"))
+    },
+    **{
+        f"{who}_{axis}_is": f"1 where the {who}'s {name} is `category`"
+        for who in ("robot", "goal")
+        for axis, name in (("row", "row"), ("col", "column"))
+    },
+    **{f"blocked_{m}": f"1 where moving {m} collides (an obstacle or the edge)" for m in MOVES},
     "goal_drow": "goal row minus robot row, in cells",
     "goal_dcol": "goal column minus robot column, in cells",
     "occupied": "1 where the cell at `offset` (drow, dcol) from the robot is an obstacle or "
     "off the grid",
-    "free_cells_up": "free cells above the robot before the first blocked one",
+    **{f"free_cells_{m}": f"free cells in a line {m} of the robot" for m in MOVES},
     "robot_x": "the robot's column",
     "robot_y": "the robot's row",
-    "obstacle_x": "an obstacle's column (the layout's, fixed)",
+    "goal_x": "the goal's column",
+    "goal_y": "the goal's row",
+    "obstacle_x": "obstacle `obstacle`'s column (the layout's, fixed)",
+    "obstacle_y": "obstacle `obstacle`'s row",
 }
 
 
@@ -310,18 +322,44 @@ def flax_params(arrays: dict[str, np.ndarray], network: dict[str, Any]) -> dict[
     return {"params": jax.tree.map(jnp.asarray, p)}
 
 
+# What a policy needs of an env other than its own (another id, e.g. a maze file): the fields
+# that shape its observation and its actions' effect (and the robot's fast CPU backend)
+CARRIED_FIELDS = {
+    "robot": (
+        "num_lasers", "laser_fov", "laser_range", "obs_absolute", "obs_proximity",
+        "obs_heading", "obs_goal_bearing", "waypoint_cells", "frames", "speed", "turn_speed",
+        "dt", "radius", "backend",
+    ),
+    "grid": ("size", "obs_mode", "sensor_radius"),
+}  # fmt: skip
+
+
+def env_for(
+    policy: Policy, env_id: str | None = None, overrides: dict[str, Any] | None = None
+) -> tuple[str, dict[str, Any]]:
+    """``(env id, env kwargs)`` to run ``policy`` on: its own env with ``overrides`` on its
+    kwargs, or the env ``env_id`` with the policy's ``CARRIED_FIELDS`` and ``overrides``."""
+    meta = policy.metadata
+    overrides = dict(overrides or {})
+    if env_id is None or env_id == meta["env_id"]:
+        return meta["env_id"], {**meta["env_kwargs"], **overrides}
+    family = "robot" if meta.get("sensors") else "grid"
+    trained = meta.get("env_config") or {}
+    carried = {k: trained[k] for k in CARRIED_FIELDS[family] if k in trained}
+    return env_id, {**carried, **overrides}
+
+
 def to_trainer(
-    policy: Policy, env_id: str | None = None, env_kwargs: dict[str, Any] | None = None
+    policy: Policy, env_id: str | None = None, overrides: dict[str, Any] | None = None
 ) -> tuple[Any, Any]:
     """``(trainer, params)`` to run an exported policy in the simulator with JAX
-    (``jaxnav.evaluate``, ``jaxnav.render``): its network on its env (or ``env_id`` with exactly
-    ``env_kwargs``), the parameters stacked as one seed's; ``ValueError`` where that env's
-    observations do not fit the network."""
+    (``jaxnav.evaluate``, ``jaxnav.render``): its network on the env of ``env_for``, the
+    parameters stacked as one seed's; ``ValueError`` where that env's observations do not fit
+    the network."""
     from jaxnav.train import Trainer
 
-    meta, net = policy.metadata, policy.network
-    env_id = meta["env_id"] if env_id is None else env_id
-    kwargs = dict(meta["env_kwargs"] if env_kwargs is None else env_kwargs)
+    net = policy.network
+    env_id, kwargs = env_for(policy, env_id, overrides)
     # the network as trained; TrainConfig's defaults for the rest, which acting never reads
     config = TrainConfig(
         env=env_id,

@@ -20,7 +20,7 @@ import pytest
 from jaxnav import export
 from jaxnav.cli import train_main
 from jaxnav.config import TrainConfig
-from jaxnav.deploy.policy import Policy
+from jaxnav.deploy.policy import Policy, describe
 from jaxnav.train import Trainer
 
 onnx = pytest.importorskip("onnx")
@@ -301,3 +301,18 @@ def test_a_failed_write_leaves_the_previous_file(tiny_run, tmp_path):
         export.write_policy(arrays, meta, out, "npz")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["p.npz"]
     assert out.read_bytes() == b"the previous export"
+
+
+def test_describe_names_every_value_of_a_frame(exported):
+    trainer, _, _, _, npz, _ = exported
+    meta = Policy.load(npz).metadata
+    text = describe(meta)
+    frame = [e for e in meta["observation"]["entries"] if e.get("frame", 0) == 0]
+    for e in frame:
+        assert f"| {e['name']} |" in text
+        assert e["name"] in meta["observation"]["quantities"] or e["name"].startswith("obstacle")
+    rows = [r for r in text.splitlines() if r.startswith("| ") and not r.startswith("| index |")]
+    covered = sum(
+        int(r.split("|")[1].split("-")[-1]) - int(r.split("|")[1].split("-")[0]) + 1 for r in rows
+    )
+    assert covered == len(frame)

@@ -20,7 +20,9 @@ then per hidden layer ``x @ kernel + bias``, LayerNorm (``(x - mean) / sqrt(var 
 from __future__ import annotations
 
 import json
+import math
 import os
+import sys
 from collections.abc import Sequence
 from typing import Any
 
@@ -70,6 +72,73 @@ def forward(arrays: dict[str, np.ndarray], network: dict[str, Any], obs: np.ndar
     return (value + advantage - advantage.mean(axis=-1, keepdims=True)).astype(np.float32)
 
 
+def _scale(value: float) -> str:
+    """A scale as a reader wants it: 1/3.5 rather than 0.2857142857142857."""
+    if value == 1:
+        return "1"
+    inverse = 1 / value
+    return f"1/{inverse:g}" if abs(inverse - round(inverse, 4)) < 1e-9 else f"{value:.6g}"
+
+
+def describe(metadata: dict[str, Any]) -> str:
+    """A policy's metadata as text: env, actions, sensors and a markdown table of one frame of
+    its observation (consecutive entries of one name on one row)."""
+    obs, net = metadata["observation"], metadata["network"]
+    lines = [
+        f"env: {metadata['env_id']} {json.dumps(metadata['env_kwargs'])}",
+        f"network: {net['obs_size']} inputs -> {'-'.join(map(str, net['hidden_sizes']))} -> "
+        f"{net['num_actions']} Q-values (dueling {net['dueling']}, layer norm "
+        f"{net['layer_norm']})",
+        "actions: "
+        + ", ".join(
+            f"{a['index']} {a['name']}"
+            + (f" (v {a['v_mps']:g} m/s, omega {a['omega_radps']:g} rad/s)" if "v_mps" in a else "")
+            for a in metadata["actions"]
+        ),
+    ]
+    sensors = metadata.get("sensors")
+    if sensors:
+        period = sensors["control_period_s"]
+        lines.append(
+            f"lidar: {sensors['num_lasers']} beams over {sensors['laser_fov_deg']:g} degrees, "
+            f"read to {sensors['laser_range_m']:g} m; control period {period:g} s; "
+            f"frames {sensors['frames']}"
+        )
+    frames = obs.get("frames", 1)
+    entries = [e for e in obs["entries"] if e.get("frame", 0) == 0]
+    stacked = f" = {frames} frames of {obs['frame_size']}, oldest first" if frames > 1 else ""
+    lines += [
+        "",
+        f"observation: {obs['size']} values{stacked}",
+        "",
+        "| index | name | raw quantity | scale | clip |",
+        "|---|---|---|---|---|",
+    ]
+    quantities = obs.get("quantities", {})
+    i = 0
+    while i < len(entries):
+        e = entries[i]
+        j = i
+        while j + 1 < len(entries) and entries[j + 1]["name"] == e["name"]:
+            j += 1
+        index = f"{i}" if i == j else f"{i}-{j}"
+        what = quantities.get(e["name"], "")
+        if e["name"] == "laser":
+            angles = [math.degrees(entries[k]["angle_rad"]) for k in range(i, j + 1)]
+            ahead = min(range(len(angles)), key=lambda k: abs(angles[k]))
+            step = f" every {angles[1] - angles[0]:.4g}" if len(angles) > 1 else ""
+            what += (
+                f"; beams at {angles[0]:.4g} .. {angles[-1]:.4g} degrees{step} from the heading "
+                f"(counter-clockwise), index {i + ahead} straight ahead"
+            )
+        elif "categories" in e:
+            what += f" ({e['categories']} categories, one-hot encoded by the network)"
+        clip = "" if e["clip"] is None else f"[{e['clip'][0]:g}, {e['clip'][1]:g}]"
+        lines.append(f"| {index} | {e['name']} | {what} | {_scale(e['scale'])} | {clip} |")
+        i = j + 1
+    return "\n".join(lines)
+
+
 class Policy:
     """A loaded policy: ``policy.act(obs)`` is the greedy action (an int for one observation,
     an array for a batch), ``policy.q_values(obs)`` the Q-values, ``policy.metadata`` what
@@ -112,3 +181,22 @@ class Policy:
         """The greedy action: the first of the largest Q-values, as ``jnp.argmax`` picks."""
         action = np.argmax(self.q_values(obs), axis=-1)
         return int(action) if action.ndim == 0 else action
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m jaxnav.deploy.policy POLICY.npz``: print what the policy reads and does."""
+    args = sys.argv[1:] if argv is None else argv
+    if len(args) != 1:
+        print("usage: python -m jaxnav.deploy.policy POLICY.npz", file=sys.stderr)
+        return 2
+    try:
+        policy = Policy.load(args[0])
+    except (OSError, ValueError, KeyError) as e:
+        print(f"jaxnav.deploy.policy: error: {e}", file=sys.stderr)
+        return 2
+    print(describe(policy.metadata))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
