@@ -722,7 +722,13 @@ def evaluate_parser() -> argparse.ArgumentParser:
         description="Evaluate a trained run (greedy) or the random agent on fresh episodes.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    p.add_argument("run", type=Path, help="run directory written by jaxnav.train")
+    p.add_argument("run", type=Path, nargs="?", help="run directory written by jaxnav.train")
+    p.add_argument(
+        "--pretrained",
+        metavar="NAME",
+        help="a policy shipped with jaxnav instead of a run (python -m jaxnav.pretrained "
+        "lists them); --out is then optional",
+    )
     p.add_argument("--env", help="evaluate on another env id (generalization); default: the run's")
     add_env_args(p)
     p.add_argument("--episodes", type=int, default=1000)
@@ -749,6 +755,18 @@ def load_run_on(
     return config, trainer, run_dir.load_trained_params(run, trainer)
 
 
+def load_pretrained_on(
+    name: str, env: str | None, overrides: dict[str, Any]
+) -> tuple[TrainConfig, Trainer, Any]:
+    """``load_run_on`` for the shipped policy ``name`` (``jaxnav.pretrained``): on its own env
+    (``env`` None) with ``overrides``, or on ``env`` with the fields its observation needs."""
+    from jaxnav import pretrained
+    from jaxnav.export import to_trainer
+
+    trainer, params = to_trainer(pretrained.load(name), env, overrides)
+    return trainer.config, trainer, params
+
+
 def evaluate_main(argv: Sequence[str] | None = None) -> int:
     prog = "jaxnav.evaluate"
     try:
@@ -757,13 +775,18 @@ def evaluate_main(argv: Sequence[str] | None = None) -> int:
             raise ValueError(f"--episodes {args.episodes}: must be in [1, 10000000]")
         if args.seed < 0:
             raise ValueError(f"--seed {args.seed}: must be non-negative")
+        if (args.run is None) == (args.pretrained is None):
+            raise UsageError("give a run directory or --pretrained NAME, one of them")
         env, overrides = env_from_args(args, args.env)
-        config = run_dir.load_config(args.run)
-        env_kwargs = {**(config.env_kwargs if env is None else {}), **overrides}
-        out = args.out or args.run / "eval.json"
-        if not out.parent.is_dir():
+        out = args.out or (None if args.run is None else args.run / "eval.json")
+        if out is not None and not out.parent.is_dir():
             raise ValueError(f"--out {out}: directory {out.parent} does not exist")
-        config, trainer, params = load_run_on(args.run, env or config.env, env_kwargs)
+        if args.pretrained is not None:
+            config, trainer, params = load_pretrained_on(args.pretrained, env, overrides)
+        else:
+            config = run_dir.load_config(args.run)
+            env_kwargs = {**(config.env_kwargs if env is None else {}), **overrides}
+            config, trainer, params = load_run_on(args.run, env or config.env, env_kwargs)
     except (UsageError, ValueError, FileNotFoundError) as e:
         return fail(prog, str(e))
     enable_compilation_cache()
@@ -771,7 +794,7 @@ def evaluate_main(argv: Sequence[str] | None = None) -> int:
     mazes = trainer.env.num_layouts(trainer.env_params)
     stats = {m: seed_statistics([r[m] for r in rows]) for m in SEED_STATISTICS}
     result = {
-        "run": str(args.run),
+        "run": str(args.run) if args.pretrained is None else f"pretrained:{args.pretrained}",
         "env": config.env,
         "env_kwargs": config.env_kwargs,
         "policy": args.policy,
@@ -782,7 +805,8 @@ def evaluate_main(argv: Sequence[str] | None = None) -> int:
         "over_seeds": stats,
         "per_seed": rows,
     }
-    run_dir.write_json(out, result)
+    if out is not None:
+        run_dir.write_json(out, result)
     print_eval_table(config.env, {args.policy: mean_of(rows)})
     if args.episodes % mazes:
         print(
@@ -791,5 +815,6 @@ def evaluate_main(argv: Sequence[str] | None = None) -> int:
         )
     if len(rows) > 1:
         print_seed_statistics(stats)
-    print(f"wrote {out}")
+    if out is not None:
+        print(f"wrote {out}")
     return 0
