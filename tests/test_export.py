@@ -316,3 +316,23 @@ def test_describe_names_every_value_of_a_frame(exported):
         int(r.split("|")[1].split("-")[-1]) - int(r.split("|")[1].split("-")[0]) + 1 for r in rows
     )
     assert covered == len(frame)
+
+
+def test_a_robot_policy_runs_on_a_maze_file_with_its_own_sensors(tmp_path):
+    """Another env id (a maze file) gets the policy's observation fields: the generalist's
+    network fits RobotMaze-v0 without naming its sensors."""
+    trainer = Trainer(CASES["robot-generalist"])
+    params = random_params(trainer, jax.random.key(0))
+    arrays = export.policy_arrays(trainer.network, params)
+    npz = export.write_policy(arrays, export.policy_metadata(trainer), tmp_path / "p.npz", "npz")
+    policy = Policy.load(npz)
+    maze = str(Path(__file__).resolve().parents[1] / "examples/mazes/rooms.txt")
+    env_id, kwargs = export.env_for(policy, "RobotMaze-v0", {"maze_file": maze})
+    assert kwargs["num_lasers"] == 32 and kwargs["waypoint_cells"] == 2
+    assert kwargs["backend"] == "kinematic" and kwargs["obs_absolute"] is False
+    on_maze, stacked = export.to_trainer(policy, env_id, {"maze_file": maze})
+    assert on_maze.env.name == "RobotMaze-v0" and on_maze.obs_size == trainer.obs_size
+    assert jax.tree.leaves(stacked)[0].shape[0] == 1  # one seed
+    # an override that changes the observation is refused in one line
+    with pytest.raises(ValueError, match="do not fit the run's network"):
+        export.to_trainer(policy, env_id, {"maze_file": maze, "num_lasers": 8})

@@ -126,9 +126,9 @@ def describe(metadata: dict[str, Any]) -> str:
         if e["name"] == "laser":
             angles = [math.degrees(entries[k]["angle_rad"]) for k in range(i, j + 1)]
             ahead = min(range(len(angles)), key=lambda k: abs(angles[k]))
-            step = f" every {angles[1] - angles[0]:.4g}" if len(angles) > 1 else ""
+            step = f" every {angles[1] - angles[0]:g}" if len(angles) > 1 else ""
             what += (
-                f"; beams at {angles[0]:.4g} .. {angles[-1]:.4g} degrees{step} from the heading "
+                f"; beams at {angles[0]:g} .. {angles[-1]:g} degrees{step} from the heading "
                 f"(counter-clockwise), index {i + ahead} straight ahead"
             )
         elif "categories" in e:
