@@ -778,13 +778,14 @@ def evaluate_main(argv: Sequence[str] | None = None) -> int:
         if (args.run is None) == (args.pretrained is None):
             raise UsageError("give a run directory or --pretrained NAME, one of them")
         env, overrides = env_from_args(args, args.env)
+        if args.run is not None:
+            config = run_dir.load_config(args.run)
         out = args.out or (None if args.run is None else args.run / "eval.json")
         if out is not None and not out.parent.is_dir():
             raise ValueError(f"--out {out}: directory {out.parent} does not exist")
         if args.pretrained is not None:
             config, trainer, params = load_pretrained_on(args.pretrained, env, overrides)
         else:
-            config = run_dir.load_config(args.run)
             env_kwargs = {**(config.env_kwargs if env is None else {}), **overrides}
             config, trainer, params = load_run_on(args.run, env or config.env, env_kwargs)
     except (UsageError, ValueError, FileNotFoundError) as e:
