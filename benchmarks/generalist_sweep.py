@@ -42,6 +42,8 @@ BEFORE = {
     "step_reward_start": -0.5,
     "step_reward_end": -1.0,
     "waypoint_cells": 0,
+    "clearance_reward": 0.0,
+    "clearance": 0.25,
 }
 LEVERS = {  # what the generalist's settings change from BEFORE
     "laser_range": 3.5,
@@ -51,9 +53,15 @@ LEVERS = {  # what the generalist's settings change from BEFORE
     "step_reward_start": -0.1,
     "step_reward_end": -0.2,
 }
-WIDE = {"num_envs": 16384, "rollout_length": 16, "num_minibatches": 8, "num_epochs": 2}
-DEEP = {"num_envs": 4096, "rollout_length": 32, "num_minibatches": 32, "num_epochs": 4}
-STEPS = {"total_timesteps": 100_000_000, "td_lambda": 0.9}
+# the network before the wider one of rows 18-20
+SMALL_NET = {"hidden_sizes": (512, 256, 128, 64), "compute_dtype": "float32"}
+WIDE = {"num_envs": 16384, "rollout_length": 16, "num_minibatches": 8, "num_epochs": 2, **SMALL_NET}
+DEEP = {"num_envs": 4096, "rollout_length": 32, "num_minibatches": 32, "num_epochs": 4, **SMALL_NET}
+STEPS = {"total_timesteps": 100_000_000, "td_lambda": 0.9, "log_interval": 4_000_000}
+NAV = {**BEFORE, **LEVERS, "waypoint_cells": 2}  # RobotNav-v0 before the clearance reward
+# 8,192 envs x 32 steps, 64 minibatches x 4 epochs, 100M steps (row 13's shape)
+NAV_TRAIN = {**DEEP, **STEPS, "num_envs": 8192, "num_minibatches": 64, "gamma": 0.99}
+CLEAR = {"clearance_reward": -1.0, "clearance": 0.1}
 # (label, env overrides, training overrides)
 ROWS: list[tuple[str, dict[str, Any], dict[str, Any]]] = [
     (
@@ -132,6 +140,23 @@ ROWS: list[tuple[str, dict[str, Any], dict[str, Any]]] = [
         "RobotNav-v0 + clearance reward -1 within 0.5 m",
         {**BEFORE, **LEVERS, "waypoint_cells": 2, "clearance_reward": -1.0, "clearance": 0.5},
         {**DEEP, **STEPS, "gamma": 0.99},
+    ),
+    ("RobotNav-v0 + clearance reward -1 within 0.1 m, 8,192 envs", {**NAV, **CLEAR}, NAV_TRAIN),
+    (
+        "+ a 1024-512-256 network",
+        {**NAV, **CLEAR},
+        {**NAV_TRAIN, "hidden_sizes": (1024, 512, 256)},
+    ),
+    (
+        "+ a 1024-512-256 network in bfloat16, 300M steps",
+        {**NAV, **CLEAR},
+        {
+            **NAV_TRAIN,
+            "hidden_sizes": (1024, 512, 256),
+            "compute_dtype": "bfloat16",
+            "total_timesteps": 300_000_000,
+            "log_interval": 10_000_000,
+        },
     ),
 ]
 TEST_KEY = 1234

@@ -41,8 +41,9 @@ segments, pillar halls, some on a smaller sub-arena; 20 x 20 cells of 0.5 m, see
 ``maze_seed``), on the ``kinematic`` backend, with 32 lasers all around (360 degrees) read to
 3.5 m, ``obs_absolute=False`` and a waypoint 2 cells ahead on a shortest path (frame: 32
 lasers, D, bearing, waypoint bearing and distance; 4 frames, 152 inputs), turns of 0.2 rad a
-step, -10 for a collision, -0.1..-0.2 a step, 40 wall slots (the families need at most 39
-boxes; mazes that need more are redrawn) and ``max_steps`` 500 (the longest geodesic
+step, -10 for a collision, -0.1..-0.2 a step, up to -1 a step for scraping a wall
+(``clearance_reward`` within ``clearance`` 0.1 m of free space), 40 wall slots (the families
+need at most 39 boxes; mazes that need more are redrawn) and ``max_steps`` 500 (the longest geodesic
 start-goal path of 256 resets was 34.5 m, ~140 forward steps). Each setting's effect is in
 ``benchmarks/results/generalist_sweep_h100.md``. The geodesic table keeps ``num_goal_cells`` =
 32 goal cells per maze: int16[2048, 32, 20, 20] is 50 MiB (the full all-pairs table would be
@@ -377,6 +378,10 @@ GENERALIST: dict[str, Any] = {
     "collision_reward": -10.0,
     "step_reward_start": -0.1,
     "step_reward_end": -0.2,
+    # scraping a wall costs up to 1 a step; a robot centred in a 0.5 m corridor (0.1 m each
+    # side) pays nothing, so narrow corridors are not worth a crash to leave
+    "clearance_reward": -1.0,
+    "clearance": 0.1,
 }
 # The fields that shape RobotNav-v0's observation: pass them (and a num_wall_slots the maze
 # needs) to run its policy elsewhere, e.g.
