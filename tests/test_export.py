@@ -336,3 +336,26 @@ def test_a_robot_policy_runs_on_a_maze_file_with_its_own_sensors(tmp_path):
     # an override that changes the observation is refused in one line
     with pytest.raises(ValueError, match="do not fit the run's network"):
         export.to_trainer(policy, env_id, {"maze_file": maze, "num_lasers": 8})
+
+
+def test_a_bfloat16_network_is_exported_in_float32_and_says_so(tmp_path):
+    """RobotNav-v0's preset trains with bfloat16 matrix products: the export computes in
+    float32, records the trained dtype, and equals the float32 network of the same params."""
+    config = TrainConfig(
+        env="RobotSimple-v0",
+        env_kwargs={"backend": "kinematic"},
+        hidden_sizes=(32,),
+        compute_dtype="bfloat16",
+    )
+    trainer = Trainer(config)
+    params = random_params(trainer, jax.random.key(1))
+    meta = export.policy_metadata(trainer)
+    assert meta["network"]["trained_compute_dtype"] == "bfloat16"
+    npz = export.write_policy(
+        export.policy_arrays(trainer.network, params), meta, tmp_path / "p.npz", "npz"
+    )
+    float32, _ = export.to_trainer(Policy.load(npz))
+    assert float32.network.compute_dtype == "float32"
+    obs = observations(trainer, 1024)
+    q_jax = np.asarray(float32.network.apply(params, jnp.asarray(obs)))
+    assert_same_policy(q_jax, Policy.load(npz).q_values(obs), Policy.load(npz).act(obs))
