@@ -27,7 +27,7 @@ import numpy as np
 
 from jaxnav import run_dir
 from jaxnav.agents import dqn
-from jaxnav.cli import Parser, UsageError, add_env_args, fail
+from jaxnav.cli import Parser, UsageError, add_env_args, env_from_args, fail
 from jaxnav.environment import Environment, EnvParams
 from jaxnav.evaluate import Policy, play, random_policy
 from jaxnav.programs import enable_compilation_cache
@@ -202,7 +202,12 @@ def parser() -> argparse.ArgumentParser:
         description="Draw episodes of a trained run: an animated GIF or a PNG of the paths.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    p.add_argument("run", type=Path, help="run directory written by jaxnav.train")
+    p.add_argument("run", type=Path, nargs="?", help="run directory written by jaxnav.train")
+    p.add_argument(
+        "--pretrained",
+        metavar="NAME",
+        help="a policy shipped with jaxnav instead of a run (python -m jaxnav.pretrained)",
+    )
     p.add_argument("--episodes", type=int, default=4, help="episodes drawn side by side (1-16)")
     p.add_argument("--out", type=Path, default=Path("traj.gif"), help=".gif or .png")
     p.add_argument("--seed", type=int, default=0, help="seed of the episodes' starts and goals")
@@ -228,23 +233,33 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.seed < 0 or not 1 <= args.fps <= 100:
             bad = f"--seed {args.seed}" if args.seed < 0 else f"--fps {args.fps}"
             raise UsageError(f"{bad}: out of range")
-        config = run_dir.load_config(args.run)
+        if (args.run is None) == (args.pretrained is None):
+            raise UsageError("give a run directory or --pretrained NAME, one of them")
+        if args.pretrained is not None:
+            from jaxnav.export import load_pretrained
+
+            env, overrides = env_from_args(args, args.env)
+            config, trainer, params = load_pretrained(args.pretrained, env, overrides)
+            env_trainer = trainer
+        else:
+            config = run_dir.load_config(args.run)
         seeds = run_dir.seeds_of(config)
         run_seed = seeds[0] if args.run_seed is None else args.run_seed
         if run_seed not in seeds:
             raise UsageError(f"--run-seed {run_seed}: the run has seeds {seeds}")
-        trainer = Trainer(config)
-        params = run_dir.load_trained_params(args.run, trainer)
-        if args.env is not None or args.env_arg:
-            kwargs = {**(config.env_kwargs if args.env is None else {}), **dict(args.env_arg)}
-            env_trainer = Trainer(
-                dataclasses.replace(config, env=args.env or config.env, env_kwargs=kwargs)
-            )
-            dqn.check_input_fits(
-                env_trainer.config.env, env_trainer.network_input, trainer.network_input
-            )
-        else:
-            env_trainer = trainer
+        if args.pretrained is None:
+            trainer = Trainer(config)
+            params = run_dir.load_trained_params(args.run, trainer)
+            if args.env is not None or args.env_arg:
+                kwargs = {**(config.env_kwargs if args.env is None else {}), **dict(args.env_arg)}
+                env_trainer = Trainer(
+                    dataclasses.replace(config, env=args.env or config.env, env_kwargs=kwargs)
+                )
+                dqn.check_input_fits(
+                    env_trainer.config.env, env_trainer.network_input, trainer.network_input
+                )
+            else:
+                env_trainer = trainer
     except (UsageError, ValueError, FileNotFoundError) as e:
         return fail(prog, str(e))
     enable_compilation_cache()
@@ -256,7 +271,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     keys = jax.random.split(jax.random.key(args.seed), args.episodes)
     obs, state = jax.vmap(env.reset, in_axes=(0, None))(keys, env_params)
     episodes = record(env, env_params, policy, obs, state)
-    title = f"{env.name}: {args.policy} policy (seed {run_seed})"
+    who = f"pretrained {args.pretrained}" if args.pretrained else f"seed {run_seed}"
+    title = f"{env.name}: {args.policy} policy ({who})"
     if args.out.suffix == ".gif":
         frames = save_gif(episodes, args.out, fps=args.fps, title=title)
         print(f"wrote {args.out} ({frames} frames)")

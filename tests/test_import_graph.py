@@ -15,7 +15,8 @@ PACKAGE = Path(__file__).resolve().parents[1] / "jaxnav"
 # A module belongs to the group with the longest name that is its name or a parent package
 # of it (the root ``jaxnav`` holds only ``jaxnav/__init__.py``).
 LAYERS: list[list[str]] = [
-    ["jaxnav.spaces", "jaxnav.sharding"],
+    ["jaxnav.spaces", "jaxnav.sharding", "jaxnav.deploy"],  # deploy: numpy only, no JAX
+    ["jaxnav.pretrained"],
     ["jaxnav.environment", "jaxnav.checkpoints"],
     ["jaxnav.envs", "jaxnav.agents", "jaxnav.wrappers"],
     ["jaxnav.registration"],
@@ -26,10 +27,12 @@ LAYERS: list[list[str]] = [
     ["jaxnav.run_dir"],
     ["jaxnav.runner"],
     ["jaxnav.cli"],  # the helpers every command line shares
+    ["jaxnav.export"],
     ["jaxnav.render"],
     ["jaxnav.plots"],
     ["jaxnav.experiments"],
-    ["jaxnav.train.__main__", "jaxnav.evaluate.__main__"],
+    ["jaxnav.pretrained.check"],  # measures a shipped policy in the simulator
+    ["jaxnav.train.__main__", "jaxnav.evaluate.__main__", "jaxnav.pretrained.__main__"],
 ]
 LAYER = {group: rank for rank, groups in enumerate(LAYERS) for group in groups}
 

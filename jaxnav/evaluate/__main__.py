@@ -28,7 +28,13 @@ def parser() -> argparse.ArgumentParser:
         description="Evaluate a trained run (greedy) or the random agent on fresh episodes.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    p.add_argument("run", type=Path, help="run directory written by jaxnav.train")
+    p.add_argument("run", type=Path, nargs="?", help="run directory written by jaxnav.train")
+    p.add_argument(
+        "--pretrained",
+        metavar="NAME",
+        help="a policy shipped with jaxnav instead of a run (python -m jaxnav.pretrained "
+        "lists them); --out is then optional",
+    )
     p.add_argument("--env", help="evaluate on another env id (generalization); default: the run's")
     add_env_args(p)
     p.add_argument("--episodes", type=int, default=1000)
@@ -47,13 +53,21 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise ValueError(f"--episodes {args.episodes}: must be in [1, 10000000]")
         if args.seed < 0:
             raise ValueError(f"--seed {args.seed}: must be non-negative")
+        if (args.run is None) == (args.pretrained is None):
+            raise UsageError("give a run directory or --pretrained NAME, one of them")
         env, overrides = env_from_args(args, args.env)
-        config = run_dir.load_config(args.run)
-        env_kwargs = {**(config.env_kwargs if env is None else {}), **overrides}
-        out = args.out or args.run / "eval.json"
-        if not out.parent.is_dir():
+        if args.run is not None:
+            config = run_dir.load_config(args.run)
+        out = args.out or (None if args.run is None else args.run / "eval.json")
+        if out is not None and not out.parent.is_dir():
             raise ValueError(f"--out {out}: directory {out.parent} does not exist")
-        config, trainer, params = run_dir.load_run_on(args.run, env or config.env, env_kwargs)
+        if args.pretrained is not None:
+            from jaxnav.export import load_pretrained
+
+            config, trainer, params = load_pretrained(args.pretrained, env, overrides)
+        else:
+            env_kwargs = {**(config.env_kwargs if env is None else {}), **overrides}
+            config, trainer, params = run_dir.load_run_on(args.run, env or config.env, env_kwargs)
     except (UsageError, ValueError, FileNotFoundError) as e:
         return fail(prog, str(e))
     enable_compilation_cache()
@@ -61,7 +75,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     mazes = trainer.env.num_layouts(trainer.env_params)
     stats = {m: seed_statistics([r[m] for r in rows]) for m in SEED_STATISTICS}
     result = {
-        "run": str(args.run),
+        "run": str(args.run) if args.pretrained is None else f"pretrained:{args.pretrained}",
         "env": config.env,
         "env_kwargs": config.env_kwargs,
         "policy": args.policy,
@@ -72,7 +86,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         "over_seeds": stats,
         "per_seed": rows,
     }
-    run_dir.write_json(out, result)
+    if out is not None:
+        run_dir.write_json(out, result)
     print_eval_table(config.env, {args.policy: mean_of(rows)})
     if args.episodes % mazes:
         print(
@@ -81,7 +96,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         )
     if len(rows) > 1:
         print_seed_statistics(stats)
-    print(f"wrote {out}")
+    if out is not None:
+        print(f"wrote {out}")
     return 0
 
 

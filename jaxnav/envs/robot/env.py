@@ -59,6 +59,19 @@ the robot may touch a wall by up to one substep of travel (``speed * dt / mjx_su
 cm by default; ``validate`` keeps it below the radius) before the episode ends. ``kinematic`` is
 an exact pure-JAX unicycle that stops in front of walls (``geometry.move_with_walls``), the
 fast path for quick experiments on CPU. Both share lasers, observation, reward and mazes.
+
+Noise and randomization (for policies meant for a real robot; all off by default and in every
+preset, and off means the same episodes bit for bit as without the options): laser range
+noise (``laser_noise`` metres plus ``laser_noise_rel`` times the range, Gaussian, clipped to
+[0, ``laser_range``]) and ``laser_dropout`` (a beam reads ``laser_range``), in the observation
+only (the clearance term reads the true ranges); actuation noise (``speed_noise``,
+``turn_noise``: the executed speed and turn rate are the commanded ones times 1 + N(0, std)
+truncated at 3 std) and control-period jitter (``dt_jitter`` j: a step lasts dt (1 + u), u ~
+U(-j, j), simulated as both speeds times 1 + u over dt, the same unicycle motion), each drawn
+per step; the robot's radius, speed and turn speed per episode (``radius_range``,
+``speed_range``, ``turn_speed_range``: uniform, drawn at reset and kept in the state). With
+step noise on, ``stochastic_step`` is set and a step splits its key. Collision sub-steps and
+the MJX substep check use the fastest possible step (``RobotConfig.max_speed``).
 """
 
 from __future__ import annotations
@@ -88,6 +101,11 @@ NUM_LASERS = 7  # the paper's; RobotConfig.num_lasers' default
 # a hint to keep fewer goal cells per maze (num_goal_cells)
 MAX_GOAL_TABLE_BYTES = 2**30  # 1 GiB: every random bank of 10 x 10 mazes allowed today fits
 _UNREACHABLE = -1e15  # where inactive wall slots go for the collision test (squares stay finite)
+# RobotConfig's per-episode ranges, and the options that make a step draw random numbers
+RANGE_FIELDS = ("radius_range", "speed_range", "turn_speed_range")
+STEP_NOISE_FIELDS = (
+    "laser_noise", "laser_noise_rel", "laser_dropout", "speed_noise", "turn_noise", "dt_jitter"
+)  # fmt: skip
 
 
 @dataclasses.dataclass(frozen=True)
@@ -139,6 +157,51 @@ class RobotConfig:
     # free space around it (the nearest laser reading less the radius); 0 = the paper's
     clearance_reward: float = 0.0
     clearance: float = 0.25
+    # Sim-to-real randomization (module docstring, "Noise and randomization"); all off by
+    # default and in the presets. Laser range noise: Gaussian, std ``laser_noise`` metres plus
+    # ``laser_noise_rel`` times the true range; ``laser_dropout`` the chance that a beam
+    # returns nothing (reads ``laser_range``). Actuation: the executed speed and turn rate are
+    # the commanded ones times 1 + N(0, std) (truncated at 3 std), per step; ``dt_jitter`` j:
+    # the control period is dt (1 + U(-j, j)) per step. Per episode, drawn at reset and kept in
+    # the state: the robot's radius and its speed and turn speed, uniform in (low, high)
+    # (None: ``radius``, ``speed``, ``turn_speed``)
+    laser_noise: float = 0.0
+    laser_noise_rel: float = 0.0
+    laser_dropout: float = 0.0
+    speed_noise: float = 0.0
+    turn_noise: float = 0.0
+    dt_jitter: float = 0.0
+    radius_range: tuple[float, float] | None = None
+    speed_range: tuple[float, float] | None = None
+    turn_speed_range: tuple[float, float] | None = None
+
+    def __post_init__(self) -> None:
+        # JSON (a run's config.json, --env-arg) gives ranges as lists: kept as tuples, so the
+        # frozen config stays hashable and compares equal to one built in Python
+        for name in RANGE_FIELDS:
+            v = getattr(self, name)
+            if isinstance(v, list):
+                object.__setattr__(self, name, tuple(v))
+
+    @property
+    def has_step_noise(self) -> bool:
+        """Whether a step draws random numbers (laser or actuation noise, period jitter)."""
+        return any(getattr(self, name) for name in STEP_NOISE_FIELDS)
+
+    @property
+    def max_speed(self) -> float:
+        """The fastest the robot can move in one control step's time ``dt``, noise and jitter
+        included (m/s): what the collision sub-steps and the MJX substep check must cover."""
+        top = self.speed if self.speed_range is None else max(self.speed_range)
+        return top * (1 + 3 * self.speed_noise) * (1 + self.dt_jitter)
+
+    @property
+    def min_radius(self) -> float:
+        return self.radius if self.radius_range is None else min(self.radius_range)
+
+    @property
+    def max_radius(self) -> float:
+        return self.radius if self.radius_range is None else max(self.radius_range)
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming the first bad field; loads and checks a maze file."""
@@ -179,14 +242,15 @@ class RobotConfig:
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v):
                 raise ValueError(f"{name}={v!r}: must be a finite number")
-        travel = self.speed * self.dt / self.mjx_substeps
-        if self.backend == "mjx" and travel >= self.radius:
+        self._validate_randomization()
+        travel = self.max_speed * self.dt / self.mjx_substeps
+        if self.backend == "mjx" and travel >= self.min_radius:
             # contacts are seen at substep boundaries: a longer substep could carry the
             # robot's centre past a wall's face (or through a thin wall) before MJX sees it
             raise ValueError(
                 f"mjx_substeps={self.mjx_substeps}: a physics substep would move the robot "
-                f"{travel:g} m at speed={self.speed}, not less than its radius {self.radius}; "
-                "use more substeps"
+                f"{travel:g} m at speed={self.max_speed:g}, not less than its radius "
+                f"{self.min_radius}; use more substeps"
             )
         if (self.maze == "file") != (self.maze_file is not None):
             raise ValueError(
@@ -219,15 +283,41 @@ class RobotConfig:
                     f"goal_radius={self.goal_radius}: larger than the {maze.name} maze allows "
                     f"({width:g} x {height:g} m)"
                 )
-            if self.radius >= maze.cell_size / 2:
+            if self.max_radius >= maze.cell_size / 2:
+                name = "radius" if self.radius_range is None else "radius_range"
                 raise ValueError(
-                    f"radius={self.radius}: the robot must fit in a {maze.cell_size:g} m cell "
-                    f"of the {maze.name} maze (radius < {maze.cell_size / 2:g})"
+                    f"{name}={getattr(self, name)}: the robot must fit in a {maze.cell_size:g} m "
+                    f"cell of the {maze.name} maze (radius < {maze.cell_size / 2:g})"
                 )
-            if self.speed * self.dt > MAX_STEP_CELLS * maze.cell_size:
+            if self.max_speed * self.dt > MAX_STEP_CELLS * maze.cell_size:
                 raise ValueError(
-                    f"speed={self.speed}, dt={self.dt}: one control step would cross more than "
-                    f"{MAX_STEP_CELLS} cells of the {maze.name} maze"
+                    f"speed={self.max_speed:g}, dt={self.dt}: one control step would cross more "
+                    f"than {MAX_STEP_CELLS} cells of the {maze.name} maze"
+                )
+
+    def _validate_randomization(self) -> None:
+        for name, hi in (
+            ("laser_noise", math.inf),
+            ("laser_noise_rel", math.inf),
+            ("laser_dropout", 1.0),
+            ("speed_noise", 1 / 3),  # the factor 1 + 3 std stays above 0: no reversed command
+            ("turn_noise", 1 / 3),
+            ("dt_jitter", 1.0),
+        ):
+            v = getattr(self, name)
+            ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+            if not ok or not 0 <= v <= hi or (v == hi and name != "laser_dropout"):
+                bound = "]" if name == "laser_dropout" else ")"
+                upper = "inf" if hi == math.inf else f"{hi:.4g}"
+                raise ValueError(f"{name}={v!r}: must be a number in [0, {upper}{bound}")
+        for name in RANGE_FIELDS:
+            v = getattr(self, name)
+            if v is None:
+                continue
+            pair = isinstance(v, tuple) and len(v) == 2 and all(_positive(x) for x in v)
+            if not pair or v[0] > v[1]:
+                raise ValueError(
+                    f"{name}={v!r}: must be a pair (low, high) of positive numbers, low <= high"
                 )
 
     def load_mazes(self, validate_only: bool = False) -> list[mazes.Maze]:
@@ -300,6 +390,7 @@ GENERALIST_SENSORS: dict[str, Any] = {
     for k in ("num_lasers", "laser_fov", "laser_range", "obs_absolute", "waypoint_cells")
 }
 
+
 def _bearing(offset: jax.Array, heading: jax.Array) -> jax.Array:
     """(sin, cos) of the direction of ``offset`` (x, y) relative to ``heading``."""
     angle = jnp.arctan2(offset[1], offset[0]) - heading
@@ -317,6 +408,10 @@ class RobotState(EnvState):
     goal: jax.Array  # float32[2]
     layout: jax.Array  # int32 index into the maze bank
     frames: jax.Array  # float32[frames, per_frame], oldest first
+    # the episode's robot where RobotConfig gives a range (drawn at reset); None: the config's
+    radius: jax.Array | None = None  # float32
+    speed: jax.Array | None = None  # float32
+    turn_speed: jax.Array | None = None  # float32
 
 
 @struct.dataclass(kw_only=True)
@@ -357,7 +452,10 @@ class RobotNav(Environment[RobotState, RobotParams]):
         self.angles = c.laser_angles
         # enough sub-steps that one moves less than the thinnest wall's half size
         thinnest = self._bank.walls.min_half_size()
-        self.substeps = max(c.substeps, geometry.min_substeps(c.speed, c.dt, thinnest))
+        self.substeps = max(c.substeps, geometry.min_substeps(c.max_speed, c.dt, thinnest))
+        # steps draw random numbers only with noise on: otherwise the step's key stays the
+        # reset's, as before the noise options existed (the same episodes bit for bit)
+        self.stochastic_step = c.has_step_noise
         self.physics = None
         if c.backend == "mjx":  # imported here so that `import jaxnav` does not load MuJoCo
             from jaxnav.envs.robot.mjx_backend import MjxRobot
@@ -428,14 +526,19 @@ class RobotNav(Environment[RobotState, RobotParams]):
         layout: jax.Array | int = 0,
     ) -> tuple[jax.Array, RobotState]:
         """Start at ``pose`` (x, y, heading) with ``goal`` (x, y) in bank maze ``layout``."""
-        del key
         pose = jnp.asarray(pose, jnp.float32)
         goal = jnp.asarray(goal, jnp.float32)
         layout = jnp.asarray(layout, jnp.int32)
-        frame = self._frame(pose, goal, layout, params)
+        # keys of their own (folded in), apart from the start, goal and heading draws
+        frame = self._sense(self._frame(pose, goal, layout, params), jax.random.fold_in(key, 1))
         frames = jnp.broadcast_to(frame, (self.config.frames, frame.shape[0]))
         state = RobotState(
-            time=jnp.zeros((), jnp.int32), pose=pose, goal=goal, layout=layout, frames=frames
+            time=jnp.zeros((), jnp.int32),
+            pose=pose,
+            goal=goal,
+            layout=layout,
+            frames=frames,
+            **self._episode_robot(jax.random.fold_in(key, 2)),
         )
         return self.get_obs(state, params), state
 
@@ -443,16 +546,19 @@ class RobotNav(Environment[RobotState, RobotParams]):
         self, key: jax.Array, state: RobotState, action: jax.Array, params: RobotParams
     ) -> tuple[jax.Array, RobotState, jax.Array, jax.Array, dict[str, jax.Array]]:
         c = self.config
-        v = jnp.array([c.speed, -c.speed, 0.0, 0.0])[action]
-        omega = jnp.array([0.0, 0.0, c.turn_speed, -c.turn_speed])[action]
+        k_move, k_sense = jax.random.split(key) if self.stochastic_step else (key, key)
+        v, omega = self._command(k_move, state, action)
+        radius = c.radius if state.radius is None else state.radius
         if self.physics is None:
             center, half_size = self._collision_boxes(params, state.layout)
             pose, collided, penetration = geometry.move_with_walls(
-                state.pose, v, omega, c.dt, c.radius, center, half_size, True, self.substeps
+                state.pose, v, omega, c.dt, radius, center, half_size, True, self.substeps
             )
         else:
             walls = jax.tree.map(lambda x: x[state.layout], params.bank.walls)
             model = self.physics.with_walls(walls)
+            if state.radius is not None:
+                model = self.physics.with_radius(model, state.radius)
             data = self.physics.init(model, state.pose, forward=False)
             _, pose, collided, penetration = self.physics.step(model, data, v, omega)
         at_goal = jnp.linalg.norm(pose[:2] - state.goal) < params.goal_radius
@@ -469,8 +575,9 @@ class RobotNav(Environment[RobotState, RobotParams]):
         known = (d_before >= 0) & (d_after >= 0)
         r_progress = jnp.where(known, params.progress_reward * (d_before - d_after), 0.0)
         frame = self._frame(pose, state.goal, state.layout, params)
-        gap = frame[: c.num_lasers].min() * c.laser_range - c.radius  # free space around it
+        gap = frame[: c.num_lasers].min() * c.laser_range - radius  # free space around it
         r_clearance = params.clearance_reward * jnp.clip(1.0 - gap / params.clearance, 0.0, 1.0)
+        frame = self._sense(frame, k_sense)  # the lasers as seen (the clearance read the truth)
         # drop the oldest frame, append the new one, on the flat vector: the same values, but
         # XLA's GPU kernel for it took 40 instead of 58 us (H200, 262,144 envs; 1.04-1.06x
         # env steps/s), the same speed on a CPU
@@ -493,6 +600,64 @@ class RobotNav(Environment[RobotState, RobotParams]):
     def reset_to_args(self, state: RobotState) -> tuple[jax.Array, jax.Array, jax.Array]:
         """The robot's pose, the goal and the maze, as ``reset_to`` takes them."""
         return state.pose, state.goal, state.layout
+
+    # -- noise and randomization ------------------------------------------------------
+    def _episode_robot(self, key: jax.Array) -> dict[str, jax.Array]:
+        """The per-episode radius, speed and turn speed drawn where the config gives a range
+        (``RobotState`` fields; the others are left out, None)."""
+        c = self.config
+        drawn = {}
+        for i, name in enumerate(("radius", "speed", "turn_speed")):
+            bounds = getattr(c, f"{name}_range")
+            if bounds is not None:
+                k = jax.random.fold_in(key, i)
+                drawn[name] = jax.random.uniform(k, (), jnp.float32, bounds[0], bounds[1])
+        return drawn
+
+    def _command(
+        self, key: jax.Array, state: RobotState, action: jax.Array
+    ) -> tuple[jax.Array, jax.Array]:
+        """``(v, omega)`` the robot executes for ``action``: the episode's speeds, times the
+        actuation noise and the period's jitter where those are on."""
+        c = self.config
+        speed = c.speed if state.speed is None else state.speed
+        turn = c.turn_speed if state.turn_speed is None else state.turn_speed
+        if state.speed is None and state.turn_speed is None:
+            v = jnp.array([c.speed, -c.speed, 0.0, 0.0])[action]
+            omega = jnp.array([0.0, 0.0, c.turn_speed, -c.turn_speed])[action]
+        else:
+            s, t = jnp.asarray(speed, jnp.float32), jnp.asarray(turn, jnp.float32)
+            v = jnp.stack([s, -s, 0 * s, 0 * s])[action]
+            omega = jnp.stack([0 * t, 0 * t, t, -t])[action]
+        if not (c.speed_noise or c.turn_noise or c.dt_jitter):
+            return v, omega
+        k_v, k_omega, k_dt = jax.random.split(key, 3)
+        if c.speed_noise:
+            v = v * (1 + c.speed_noise * jax.random.truncated_normal(k_v, -3.0, 3.0))
+        if c.turn_noise:
+            omega = omega * (1 + c.turn_noise * jax.random.truncated_normal(k_omega, -3.0, 3.0))
+        if c.dt_jitter:
+            # a period of dt (1 + u) moves the unicycle exactly as speeds times (1 + u) over dt
+            # (its motion depends on v dt and omega dt only): one code path for both backends
+            u = jax.random.uniform(k_dt, (), jnp.float32, -c.dt_jitter, c.dt_jitter)
+            v, omega = v * (1 + u), omega * (1 + u)
+        return v, omega
+
+    def _sense(self, frame: jax.Array, key: jax.Array) -> jax.Array:
+        """``frame`` with its lasers as a noisy sensor reads them (unchanged with laser noise
+        and dropout off): Gaussian range noise, then dropped beams at ``laser_range``."""
+        c = self.config
+        if not (c.laser_noise or c.laser_noise_rel or c.laser_dropout):
+            return frame
+        n = c.num_lasers
+        ranges = frame[:n] * c.laser_range
+        k_noise, k_drop = jax.random.split(key)
+        std = c.laser_noise + c.laser_noise_rel * ranges
+        ranges = jnp.clip(ranges + std * jax.random.normal(k_noise, (n,)), 0.0, c.laser_range)
+        if c.laser_dropout:
+            dropped = jax.random.bernoulli(k_drop, c.laser_dropout, (n,))
+            ranges = jnp.where(dropped, c.laser_range, ranges)
+        return frame.at[:n].set(ranges / c.laser_range)
 
     # -- evaluation hooks -----------------------------------------------------------
     def num_layouts(self, params: RobotParams) -> int:

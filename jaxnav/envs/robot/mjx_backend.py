@@ -187,6 +187,16 @@ class MjxRobot:
         geom_rbound = model.geom_rbound.at[w].set(jnp.linalg.norm(size, axis=-1))
         return model.replace(geom_pos=geom_pos, geom_size=geom_size, geom_rbound=geom_rbound)
 
+    def with_radius(self, model: mjx.Model, radius: jax.Array) -> mjx.Model:
+        """``model`` with the robot's sphere of ``radius`` metres (a per-episode radius; its
+        bounding sphere too, which the broad phase ranks pairs by). Traceable; under ``vmap``
+        ``geom_size`` and ``geom_rbound`` become batched, as in ``with_walls``."""
+        r = jnp.asarray(radius, jnp.float32)
+        return model.replace(
+            geom_size=model.geom_size.at[self.robot_geom].set(jnp.stack([r, r, r])),
+            geom_rbound=model.geom_rbound.at[self.robot_geom].set(r),
+        )
+
     @property
     def model_axes(self) -> mjx.Model:
         """``in_axes`` / ``out_axes`` for a model batched by ``with_walls``: 0 on ``geom_pos``,

@@ -1,0 +1,202 @@
+"""An exported jaxnav policy in plain numpy: load the npz, compute Q-values, act greedily.
+
+Needs numpy and the standard library only (no JAX), so it runs on a robot's computer; the
+file can be copied there on its own. ``python -m jaxnav.export RUN --format npz`` writes the
+npz: the network's arrays under the names below and its metadata as JSON in ``metadata``
+(a 0-d string array, readable without pickle)::
+
+    dense{i}_kernel [in, out], dense{i}_bias [out]       hidden layer i (i = 0, 1, ...)
+    norm{i}_scale [out], norm{i}_bias [out]              its LayerNorm, if the network has one
+    head_kernel, head_bias                               Q-values (without dueling heads)
+    value_kernel [h, 1], value_bias [1]                  dueling: Q = V + (A - mean_a A)
+    advantage_kernel [h, A], advantage_bias [A]
+
+Forward pass, as ``jaxnav.agents.dqn.QNetwork`` computes it: the observation as float32
+(values the metadata's ``network.onehot_sizes`` marks as categories one-hot encoded first),
+then per hidden layer ``x @ kernel + bias``, LayerNorm (``(x - mean) / sqrt(var + eps) * scale
++ bias``) where present, ReLU; then the head(s).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import sys
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+FORMAT = "jaxnav-policy"
+FORMAT_VERSION = 1
+
+
+def expand_onehot(obs: np.ndarray, onehot_sizes: Sequence[int]) -> np.ndarray:
+    """``obs[..., i]`` one-hot encoded into ``onehot_sizes[i]`` columns (kept as one number
+    where that is 0), as ``jaxnav.agents.dqn.expand_onehot``: values truncated to integers, a
+    value outside ``[0, n)`` encodes as all zeros."""
+    parts = []
+    for i, n in enumerate(onehot_sizes):
+        column = obs[..., i]
+        if n:
+            index = column.astype(np.int32)
+            parts.append((index[..., None] == np.arange(n, dtype=np.int32)).astype(np.float32))
+        else:
+            parts.append(column[..., None].astype(np.float32))
+    return np.concatenate(parts, axis=-1)
+
+
+def forward(arrays: dict[str, np.ndarray], network: dict[str, Any], obs: np.ndarray) -> np.ndarray:
+    """Q-values ``float32[..., num_actions]`` of observations ``obs[..., obs_size]`` for the
+    network described by ``network`` (the metadata's ``"network"``) with weights ``arrays``."""
+    obs = np.asarray(obs)
+    if obs.shape[-1] != network["obs_size"]:
+        raise ValueError(
+            f"observation of {obs.shape[-1]} values; the policy reads {network['obs_size']}"
+        )
+    onehot = network.get("onehot_sizes")
+    x = obs.astype(np.float32) if onehot is None else expand_onehot(obs, onehot)
+    eps = np.float32(network.get("layer_norm_epsilon", 1e-6))
+    for i in range(len(network["hidden_sizes"])):
+        x = x @ arrays[f"dense{i}_kernel"] + arrays[f"dense{i}_bias"]
+        if network["layer_norm"]:
+            mean = x.mean(axis=-1, keepdims=True)
+            var = np.square(x - mean).mean(axis=-1, keepdims=True)
+            x = (x - mean) / np.sqrt(var + eps) * arrays[f"norm{i}_scale"] + arrays[f"norm{i}_bias"]
+        x = np.maximum(x, 0).astype(np.float32)
+    if not network["dueling"]:
+        return (x @ arrays["head_kernel"] + arrays["head_bias"]).astype(np.float32)
+    value = x @ arrays["value_kernel"] + arrays["value_bias"]
+    advantage = x @ arrays["advantage_kernel"] + arrays["advantage_bias"]
+    return (value + advantage - advantage.mean(axis=-1, keepdims=True)).astype(np.float32)
+
+
+def _scale(value: float) -> str:
+    """A scale as a reader wants it: 1/3.5 rather than 0.2857142857142857."""
+    if value == 1:
+        return "1"
+    inverse = 1 / value
+    return f"1/{inverse:g}" if abs(inverse - round(inverse, 4)) < 1e-9 else f"{value:.6g}"
+
+
+def describe(metadata: dict[str, Any]) -> str:
+    """A policy's metadata as text: env, actions, sensors and a markdown table of one frame of
+    its observation (consecutive entries of one name on one row)."""
+    obs, net = metadata["observation"], metadata["network"]
+    lines = [
+        f"env: {metadata['env_id']} {json.dumps(metadata['env_kwargs'])}",
+        f"network: {net['obs_size']} inputs -> {'-'.join(map(str, net['hidden_sizes']))} -> "
+        f"{net['num_actions']} Q-values (dueling {net['dueling']}, layer norm "
+        f"{net['layer_norm']})",
+        "actions: "
+        + ", ".join(
+            f"{a['index']} {a['name']}"
+            + (f" (v {a['v_mps']:g} m/s, omega {a['omega_radps']:g} rad/s)" if "v_mps" in a else "")
+            for a in metadata["actions"]
+        ),
+    ]
+    sensors = metadata.get("sensors")
+    if sensors:
+        period = sensors["control_period_s"]
+        lines.append(
+            f"lidar: {sensors['num_lasers']} beams over {sensors['laser_fov_deg']:g} degrees, "
+            f"read to {sensors['laser_range_m']:g} m; control period {period:g} s; "
+            f"frames {sensors['frames']}"
+        )
+    frames = obs.get("frames", 1)
+    entries = [e for e in obs["entries"] if e.get("frame", 0) == 0]
+    stacked = f" = {frames} frames of {obs['frame_size']}, oldest first" if frames > 1 else ""
+    lines += [
+        "",
+        f"observation: {obs['size']} values{stacked}",
+        "",
+        "| index | name | raw quantity | scale | clip |",
+        "|---|---|---|---|---|",
+    ]
+    quantities = obs.get("quantities", {})
+    i = 0
+    while i < len(entries):
+        e = entries[i]
+        j = i
+        while j + 1 < len(entries) and entries[j + 1]["name"] == e["name"]:
+            j += 1
+        index = f"{i}" if i == j else f"{i}-{j}"
+        what = quantities.get(e["name"], "")
+        if e["name"] == "laser":
+            angles = [math.degrees(entries[k]["angle_rad"]) for k in range(i, j + 1)]
+            ahead = min(range(len(angles)), key=lambda k: abs(angles[k]))
+            step = f" every {angles[1] - angles[0]:g}" if len(angles) > 1 else ""
+            what += (
+                f"; beams at {angles[0]:g} .. {angles[-1]:g} degrees{step} from the heading "
+                f"(counter-clockwise), index {i + ahead} straight ahead"
+            )
+        elif "categories" in e:
+            what += f" ({e['categories']} categories, one-hot encoded by the network)"
+        clip = "" if e["clip"] is None else f"[{e['clip'][0]:g}, {e['clip'][1]:g}]"
+        lines.append(f"| {index} | {e['name']} | {what} | {_scale(e['scale'])} | {clip} |")
+        i = j + 1
+    return "\n".join(lines)
+
+
+class Policy:
+    """A loaded policy: ``policy.act(obs)`` is the greedy action (an int for one observation,
+    an array for a batch), ``policy.q_values(obs)`` the Q-values, ``policy.metadata`` what
+    ``jaxnav.export`` recorded (observation layout, actions, sensors, env id and kwargs)."""
+
+    def __init__(self, arrays: dict[str, np.ndarray], metadata: dict[str, Any]):
+        if metadata.get("format") != FORMAT:
+            raise ValueError(f"not a jaxnav policy (format {metadata.get('format')!r})")
+        if metadata.get("format_version", 0) > FORMAT_VERSION:
+            raise ValueError(
+                f"policy format version {metadata['format_version']} is newer than this "
+                f"reader's {FORMAT_VERSION}; update jaxnav"
+            )
+        self.arrays = {k: np.asarray(v, np.float32) for k, v in arrays.items()}
+        self.metadata = metadata
+        self.network = metadata["network"]
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> Policy:
+        """The policy in the npz file ``path`` (``python -m jaxnav.export --format npz``)."""
+        with np.load(path, allow_pickle=False) as f:
+            if "metadata" not in f.files:
+                raise ValueError(f"{path}: not a jaxnav policy (no metadata)")
+            metadata = json.loads(str(f["metadata"]))
+            arrays = {k: f[k] for k in f.files if k != "metadata"}
+        return cls(arrays, metadata)
+
+    @property
+    def obs_size(self) -> int:
+        return int(self.network["obs_size"])
+
+    @property
+    def action_names(self) -> list[str]:
+        return [a["name"] for a in self.metadata["actions"]]
+
+    def q_values(self, obs: np.ndarray) -> np.ndarray:
+        return forward(self.arrays, self.network, obs)
+
+    def act(self, obs: np.ndarray) -> Any:
+        """The greedy action: the first of the largest Q-values, as ``jnp.argmax`` picks."""
+        action = np.argmax(self.q_values(obs), axis=-1)
+        return int(action) if action.ndim == 0 else action
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m jaxnav.deploy.policy POLICY.npz``: print what the policy reads and does."""
+    args = sys.argv[1:] if argv is None else argv
+    if len(args) != 1:
+        print("usage: python -m jaxnav.deploy.policy POLICY.npz", file=sys.stderr)
+        return 2
+    try:
+        policy = Policy.load(args[0])
+    except (OSError, ValueError, KeyError) as e:
+        print(f"jaxnav.deploy.policy: error: {e}", file=sys.stderr)
+        return 2
+    print(describe(policy.metadata))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,212 @@
+"""A robot's sensor readings as an exported policy's observation, with numpy alone (no JAX).
+
+``ScanObservation(policy.metadata)`` turns what a robot publishes, a 2D lidar scan (ROS
+``sensor_msgs/LaserScan``'s ``ranges``, ``angle_min``, ``angle_increment``, ``range_min``,
+``range_max``), its pose ``(x, y, yaw)`` (from odometry or a localizer; ``yaw_from_quaternion``
+converts a ROS orientation) and a goal ``(x, y)``, into the observation the policy was trained
+on, frames stacked as the simulator stacks them::
+
+    observe = ScanObservation(policy.metadata)
+    observe.reset()                                  # at the start of every episode
+    action = policy.act(observe(scan, pose, goal))   # every control period (metadata's dt)
+
+Conventions, the simulator's (``jaxnav.envs.robot``): metres and radians, x forward, y left,
+angles counter-clockwise from +x (ROS REP 103). The policy's beams (metadata ``sensors``
+``beam_angles_rad``) are directions from the heading, cast from the robot's centre; here each
+takes the scan reading nearest to it in angle (``beam_width`` > 0: the nearest range within
+that window instead, a conservative reading for thin obstacles between beams). The scanner is
+taken to sit at the robot's centre, turned by ``mount_yaw`` from the heading (a scan's angle
+a is the direction a + mount_yaw from the heading; a scanner mounted backwards has pi).
+
+Readings, as REP 117 defines them: +inf or above ``range_max``: nothing within range (the
+policy reads its own range, as the simulator's rays that hit nothing); -inf: something closer
+than ``range_min`` (reads 0); NaN and finite readings below ``range_min``: no valid return,
+read as nothing within range, as the simulator's ``laser_dropout`` trains for. The policy's
+range (metadata ``laser_range_m``) clips every reading; a scanner whose ``range_max`` is below
+it reports walls beyond its range as free space. A beam of the policy outside the scan's
+field of view is an error, unless ``fill_uncovered`` gives a range (metres) for it.
+
+Policies trained with ``obs_absolute`` (the paper's layout) also read the goal and the robot
+in the maze's frame (origin at its lower-left corner, metres, divided by the arena's size):
+give pose and goal in that frame. Policies with a waypoint (``waypoint_cells``; RobotNav-v0's)
+read a point a few cells ahead on a shortest path to the goal: a planner on the robot's map
+provides it (e.g. a point of ROS nav2's global plan about ``waypoint_cells`` cells ahead, or
+the goal itself when closer), given as ``waypoint=(x, y)`` in the pose's frame.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class LaserScan:
+    """One 2D lidar sweep, as ROS ``sensor_msgs/LaserScan`` has it: reading i is at angle
+    ``angle_min + i * angle_increment`` (radians; a negative increment sweeps clockwise)."""
+
+    ranges: Sequence[float] | np.ndarray
+    angle_min: float
+    angle_increment: float
+    range_max: float
+    range_min: float = 0.0
+
+
+def yaw_from_quaternion(x: float, y: float, z: float, w: float) -> float:
+    """The yaw (rotation about z, radians) of an orientation quaternion, as ROS odometry
+    (``nav_msgs/Odometry``'s ``pose.pose.orientation``) gives it."""
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+def _wrap(angle: np.ndarray) -> np.ndarray:
+    """Angles wrapped to [-pi, pi)."""
+    return (np.asarray(angle, np.float64) + np.pi) % (2 * np.pi) - np.pi
+
+
+def resample_scan(
+    scan: LaserScan,
+    beam_angles: Sequence[float] | np.ndarray,
+    mount_yaw: float = 0.0,
+    beam_width: float = 0.0,
+    fill_uncovered: float | None = None,
+) -> np.ndarray:
+    """Ranges in metres ``float64[beams]`` along ``beam_angles`` (radians from the heading)
+    from ``scan`` (see the module docstring for readings, mounting and windows); ``inf``
+    where nothing is within the scan's range. ``ValueError`` for a beam outside the scan's
+    field of view unless ``fill_uncovered`` gives its range."""
+    ranges = np.asarray(scan.ranges, np.float64).ravel()
+    if ranges.size == 0:
+        raise ValueError("scan has no readings")
+    if not math.isfinite(scan.angle_increment) or scan.angle_increment == 0:
+        raise ValueError(f"angle_increment={scan.angle_increment!r}: must be finite and nonzero")
+    reading = np.where(np.isneginf(ranges), 0.0, ranges)  # REP 117: -inf is "too close"
+    valid = np.isfinite(reading) & (reading >= scan.range_min) & (reading <= scan.range_max)
+    reading = np.where(np.isneginf(ranges) | valid, reading, np.inf)
+    step = abs(scan.angle_increment)
+    angles = scan.angle_min + scan.angle_increment * np.arange(ranges.size) + mount_yaw
+    beams = np.asarray(beam_angles, np.float64).ravel()
+    offset = _wrap(angles[None, :] - beams[:, None])  # [beams, readings]
+    distance = np.abs(offset)
+    nearest = distance.argmin(axis=1)
+    # a beam is covered if a reading lies within half a step of it (a full circle of
+    # readings covers every direction)
+    covered = distance[np.arange(beams.size), nearest] <= step / 2 + 1e-9
+    out = reading[nearest]
+    if beam_width > 0:
+        window = distance <= beam_width / 2
+        windowed = np.where(window, reading[None, :], np.inf).min(axis=1)
+        out = np.where(window.any(axis=1), np.minimum(windowed, out), out)
+    if not covered.all():
+        if fill_uncovered is None:
+            first = math.degrees(beams[~covered][0])
+            low = math.degrees(min(angles[0], angles[-1]))
+            high = math.degrees(max(angles[0], angles[-1]))
+            raise ValueError(
+                f"policy beam at {first:.1f} deg is outside the scan's field of view "
+                f"[{low:.1f}, {high:.1f}] deg (mount_yaw included); pass fill_uncovered"
+            )
+        out = np.where(covered, out, fill_uncovered)
+    return out
+
+
+class ScanObservation:
+    """Builds a policy's observations from scans, poses, goals (and waypoints), keeping the
+    last ``frames`` frames as the simulator does; ``reset()`` at each episode's start."""
+
+    def __init__(
+        self,
+        metadata: dict[str, Any] | Any,
+        mount_yaw: float = 0.0,
+        beam_width: float = 0.0,
+        fill_uncovered: float | None = None,
+    ):
+        """``metadata``: an exported policy's (``Policy.metadata``, or the ``Policy``)."""
+        metadata = getattr(metadata, "metadata", metadata)
+        sensors = metadata.get("sensors")
+        if sensors is None:
+            raise ValueError(
+                f"{metadata.get('env_id')}: not a laser policy (no sensors in its metadata)"
+            )
+        obs = metadata["observation"]
+        self.frame_entries = [e for e in obs["entries"] if e["frame"] == 0]
+        self.frames = int(obs["frames"])
+        self.size = int(obs["size"])
+        self.beam_angles = np.asarray(sensors["beam_angles_rad"], np.float64)
+        self.laser_range = float(sensors["laser_range_m"])
+        self.needs_waypoint = any(e["name"].startswith("waypoint") for e in self.frame_entries)
+        self.mount_yaw = float(mount_yaw)
+        self.beam_width = float(beam_width)
+        self.fill_uncovered = fill_uncovered
+        self._stack: list[np.ndarray] = []
+
+    def reset(self) -> None:
+        """Forget the stacked frames: the next call fills every frame with its own."""
+        self._stack = []
+
+    def frame(
+        self,
+        scan: LaserScan,
+        pose: Sequence[float],
+        goal: Sequence[float],
+        waypoint: Sequence[float] | None = None,
+    ) -> np.ndarray:
+        """One frame ``float32[frame_size]`` (no stacking)."""
+        x, y, yaw = (float(v) for v in pose)
+        gx, gy = (float(v) for v in goal)
+        if self.needs_waypoint and waypoint is None:
+            raise ValueError(
+                "this policy reads a waypoint (waypoint_cells): pass waypoint=(x, y), a point "
+                "ahead on a planned path to the goal"
+            )
+        ranges = resample_scan(
+            scan, self.beam_angles, self.mount_yaw, self.beam_width, self.fill_uncovered
+        )
+        raw = {
+            "goal_x": gx,
+            "goal_y": gy,
+            "robot_x": x,
+            "robot_y": y,
+            "goal_distance": math.hypot(gx - x, gy - y),
+            "heading_sin": math.sin(yaw),
+            "heading_cos": math.cos(yaw),
+        }
+        goal_angle = math.atan2(gy - y, gx - x) - yaw
+        raw["goal_bearing_sin"], raw["goal_bearing_cos"] = (
+            math.sin(goal_angle),
+            math.cos(goal_angle),
+        )
+        if waypoint is not None:
+            wx, wy = (float(v) for v in waypoint)
+            angle = math.atan2(wy - y, wx - x) - yaw
+            raw["waypoint_bearing_sin"], raw["waypoint_bearing_cos"] = (
+                math.sin(angle),
+                math.cos(angle),
+            )
+            raw["waypoint_distance"] = math.hypot(wx - x, wy - y)
+        values = np.empty(len(self.frame_entries), np.float64)
+        for i, e in enumerate(self.frame_entries):
+            if e["name"] == "laser":
+                value = min(ranges[e["beam"]], self.laser_range) * e["scale"]
+            else:
+                value = raw[e["name"]] * e["scale"]
+            if e["clip"] is not None:
+                value = min(max(value, e["clip"][0]), e["clip"][1])
+            values[i] = value
+        return values.astype(np.float32)
+
+    def __call__(
+        self,
+        scan: LaserScan,
+        pose: Sequence[float],
+        goal: Sequence[float],
+        waypoint: Sequence[float] | None = None,
+    ) -> np.ndarray:
+        """The observation ``float32[size]``: this frame after the last ``frames - 1`` ones,
+        oldest first (right after ``reset()``, this frame in every slot)."""
+        f = self.frame(scan, pose, goal, waypoint)
+        self._stack = [f] * self.frames if not self._stack else [*self._stack[1:], f]
+        return np.concatenate(self._stack)

@@ -1,0 +1,608 @@
+"""Export a trained policy off the simulator: ``python -m jaxnav.export RUN --format onnx|npz``.
+
+One file holds everything a robot needs to run the policy: the network's weights and the
+metadata (``policy_metadata``): the observation layout (every input value by name, with its
+scale and clip), the action meanings (speeds, or grid moves), the sensor configuration (beams,
+field of view, range, frames, control period), the env id and kwargs, and where it came from.
+
+- ``npz``: the arrays under plain names and the metadata as JSON (``jaxnav.deploy.policy``
+  documents the layout and runs it with numpy alone).
+- ``onnx``: the same network as an ONNX graph written from the trained parameters (MatMul,
+  Add, LayerNormalization, Relu, the dueling combination, ArgMax; input ``obs`` float32
+  [batch, obs_size], outputs ``q_values`` and ``action``), the metadata as the model's
+  ``metadata_props["jaxnav"]`` (JSON). Needs the ``onnx`` package (``pip install
+  'jaxnav[export]'``); run it with ``onnxruntime`` or any ONNX runtime of opset 17.
+
+The grid's compact ``index`` observations stay compact: the exported network one-hot encodes
+the values ``network.onehot_sizes`` marks, as ``QNetwork`` does. A run trained with bfloat16
+matrix products is exported in float32 (its Q-values then differ by bfloat16's rounding).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxnav import __version__, run_dir
+from jaxnav.agents.dqn import QNetwork, check_input_fits
+from jaxnav.config import TrainConfig
+from jaxnav.deploy.policy import FORMAT, FORMAT_VERSION, Policy
+from jaxnav.envs import grid_maze
+from jaxnav.envs.robot import env as robot_env
+
+FORMATS = ("npz", "onnx")
+ONNX_OPSET = 17  # LayerNormalization's first opset
+ONNX_IR_VERSION = 8  # the oldest IR of opset 17: runtimes back to onnxruntime 1.14 read it
+LAYER_NORM_EPSILON = 1e-6  # flax.linen.LayerNorm's default, which QNetwork uses
+METADATA_KEY = "jaxnav"
+
+
+# ------------------------------------------------------------------ observation layout
+MOVES = ("up", "down", "left", "right")  # GridMaze's actions, in order
+def _entry(name: str, scale: float = 1.0, clip: Sequence[float] | None = None, **more: Any):
+    return {"name": name, "scale": scale, "clip": None if clip is None else list(clip), **more}
+
+
+def robot_frame_layout(env: robot_env.RobotNav) -> list[dict[str, Any]]:
+    """One frame of a robot env's observation, value by value in the env's order (its
+    ``_frame``): ``name``, ``scale`` (value = raw quantity x scale), ``clip`` (of the value,
+    or None) and, for lasers, the beam's ``angle_rad`` from the heading (counter-clockwise)."""
+    c = env.config
+    inv_range = 1.0 / c.laser_range
+    entries = [
+        _entry("laser", inv_range, (0.0, 1.0), beam=i, angle_rad=float(a))
+        for i, a in enumerate(np.asarray(env.angles, np.float64))
+    ]
+    if c.obs_absolute:
+        width, height = (float(v) for v in env.arena)
+        entries += [
+            _entry("goal_x", 1.0 / width),
+            _entry("goal_y", 1.0 / height),
+            _entry("robot_x", 1.0 / width),
+            _entry("robot_y", 1.0 / height),
+        ]
+    if c.obs_proximity:
+        entries.append(_entry("goal_distance", inv_range, (0.0, 1.0)))
+    if c.obs_heading:
+        entries += [_entry("heading_sin"), _entry("heading_cos")]
+    if c.obs_goal_bearing:
+        entries += [_entry("goal_bearing_sin"), _entry("goal_bearing_cos")]
+    if c.waypoint_cells:
+        entries += [
+            _entry("waypoint_bearing_sin"),
+            _entry("waypoint_bearing_cos"),
+            _entry("waypoint_distance", inv_range, (0.0, 1.0)),
+        ]
+    return entries
+
+
+ROBOT_QUANTITIES = {
+    "laser": "range in metres from the robot's centre along the beam, clipped to the laser "
+    "range (no hit reads the range)",
+    "goal_x": "goal x in metres, in the maze's frame (origin at its lower-left corner)",
+    "goal_y": "goal y in metres, in the maze's frame",
+    "robot_x": "robot x in metres, in the maze's frame",
+    "robot_y": "robot y in metres, in the maze's frame",
+    "goal_distance": "straight-line distance robot to goal in metres",
+    "heading_sin": "sin of the heading (radians, counter-clockwise from +x)",
+    "heading_cos": "cos of the heading",
+    "goal_bearing_sin": "sin of the goal's direction minus the heading",
+    "goal_bearing_cos": "cos of the goal's direction minus the heading",
+    "waypoint_bearing_sin": "sin of the waypoint's direction minus the heading (the waypoint: "
+    "waypoint_cells cells ahead on a shortest path, from a planner)",
+    "waypoint_bearing_cos": "cos of the waypoint's direction minus the heading",
+    "waypoint_distance": "straight-line distance robot to waypoint in metres",
+}
+
+
+def grid_layout(env: grid_maze.GridMaze, params: grid_maze.GridMazeParams) -> list[dict]:
+    """A GridMaze observation value by value (its ``get_obs``): rows and columns are cells
+    (row 0 at the top), ``blocked_*`` 1 where that move collides (an obstacle or the edge)."""
+    s, mode = env.size, env.config.obs_mode
+    inv = 1.0 / max(s - 1, 1)
+    moves = MOVES
+    if mode == "paper":
+        obstacles = params.bank.obstacle_cells.shape[1]
+        entries = [_entry(n, inv) for n in ("robot_x", "robot_y", "goal_x", "goal_y")]
+        for i in range(obstacles):
+            entries += [_entry(f"obstacle_{axis}", inv, obstacle=i) for axis in "xy"]
+        return entries
+    tail = [_entry(f"blocked_{m}") for m in moves] + [_entry("goal_drow"), _entry("goal_dcol")]
+    if mode == "index":
+        cells = ("robot_row", "robot_col", "goal_row", "goal_col")
+        return [_entry(n, categories=s) for n in cells] + tail
+    if mode == "onehot":
+        cells = ("robot_row", "robot_col", "goal_row", "goal_col")
+        return [_entry(f"{n}_is", category=k) for n in cells for k in range(s)] + tail
+    r = env.config.sensor_radius
+    window = [
+        _entry("occupied", offset=[dr, dc]) for dr in range(-r, r + 1) for dc in range(-r, r + 1)
+    ]
+    runs = [_entry(f"free_cells_{m}", inv) for m in moves]
+    return window + runs + [_entry("goal_drow", inv), _entry("goal_dcol", inv)]
+
+
+GRID_QUANTITIES = {
+    **{
+        f"{who}_{axis}": f"the {who}'s {name} (0 at the {edge}), a category"
+        for who in ("robot", "goal")
+        for axis, name, edge in (("row", "row", "top"), ("col", "column", "left"))
+    },
+    **{
+        f"{who}_{axis}_is": f"1 where the {who}'s {name} is `category`"
+        for who in ("robot", "goal")
+        for axis, name in (("row", "row"), ("col", "column"))
+    },
+    **{f"blocked_{m}": f"1 where moving {m} collides (an obstacle or the edge)" for m in MOVES},
+    "goal_drow": "goal row minus robot row, in cells",
+    "goal_dcol": "goal column minus robot column, in cells",
+    "occupied": "1 where the cell at `offset` (drow, dcol) from the robot is an obstacle or "
+    "off the grid",
+    **{f"free_cells_{m}": f"free cells in a line {m} of the robot" for m in MOVES},
+    "robot_x": "the robot's column",
+    "robot_y": "the robot's row",
+    "goal_x": "the goal's column",
+    "goal_y": "the goal's row",
+    "obstacle_x": "obstacle `obstacle`'s column (the layout's, fixed)",
+    "obstacle_y": "obstacle `obstacle`'s row",
+}
+
+
+def observation_metadata(env: Any, params: Any) -> dict[str, Any]:
+    """The observation's layout: ``entries`` (one per input value, in order: ``index``,
+    ``name``, ``scale``, ``clip`` and the entry's own fields; robot entries have ``frame``,
+    0 the oldest), the frame stacking and what each name means."""
+    if isinstance(env, robot_env.RobotNav):
+        frame = robot_frame_layout(env)
+        frames = env.config.frames
+        entries = [
+            {"index": f * len(frame) + i, "frame": f, **e}
+            for f in range(frames)
+            for i, e in enumerate(frame)
+        ]
+        return {
+            "size": len(entries),
+            "frames": frames,
+            "frame_size": len(frame),
+            "stacking": "the last `frames` frames, oldest first; after a reset every frame is "
+            "the first one",
+            "env_dtype": "float32",
+            "entries": entries,
+            "quantities": ROBOT_QUANTITIES,
+            "value": "clip(raw quantity x scale) where clip is given, else raw x scale",
+        }
+    if isinstance(env, grid_maze.GridMaze):
+        entries = [{"index": i, **e} for i, e in enumerate(grid_layout(env, params))]
+        return {
+            "size": len(entries),
+            "frames": 1,
+            "frame_size": len(entries),
+            "obs_mode": env.config.obs_mode,
+            "env_dtype": str(np.dtype(env.observation_space(params).dtype)),
+            "entries": entries,
+            "quantities": GRID_QUANTITIES,
+            "value": "raw quantity x scale",
+        }
+    raise ValueError(f"{type(env).__name__}: no observation layout known for this env")
+
+
+def action_metadata(env: Any) -> list[dict[str, Any]]:
+    """What each action index does: robot speeds (m/s, rad/s), or a grid move (cells)."""
+    if isinstance(env, robot_env.RobotNav):
+        c = env.config
+        speeds = ((c.speed, 0.0), (-c.speed, 0.0), (0.0, c.turn_speed), (0.0, -c.turn_speed))
+        return [
+            {"index": i, "name": n, "v_mps": v, "omega_radps": w}
+            for i, (n, (v, w)) in enumerate(zip(robot_env.ACTION_NAMES, speeds, strict=True))
+        ]
+    return [
+        {"index": i, "name": n, "drow": int(d[0]), "dcol": int(d[1])}
+        for i, (n, d) in enumerate(zip(grid_maze.ACTION_NAMES, grid_maze.MOVES, strict=True))
+    ]
+
+
+def sensor_metadata(env: Any) -> dict[str, Any] | None:
+    """The robot's lidar, frames and control period as the policy was trained with them."""
+    if not isinstance(env, robot_env.RobotNav):
+        return None
+    c = env.config
+    return {
+        "num_lasers": c.num_lasers,
+        "laser_fov_deg": c.laser_fov,
+        "laser_range_m": c.laser_range,
+        "beam_angles_rad": [float(a) for a in np.asarray(env.angles, np.float64)],
+        "beam_origin": "the robot's centre",
+        "angle_convention": "radians from the heading, counter-clockwise (left) positive; for a "
+        "field of view under 360 degrees index 0 is the rightmost beam",
+        "frames": c.frames,
+        "control_period_s": c.dt,
+        "robot_radius_m": c.radius,
+        "goal_radius_m": c.goal_radius,
+        "arena_m": [float(v) for v in env.arena] if c.obs_absolute else None,
+        "waypoint_cells": c.waypoint_cells,
+    }
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {k: _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, (np.generic,)):
+        return value.item()
+    if isinstance(value, os.PathLike):
+        return os.fspath(value)
+    return value
+
+
+def policy_metadata(trainer: Any, source: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Everything but the weights: network, observation layout, actions, sensors, env."""
+    config: TrainConfig = trainer.config
+    env, env_params = trainer.env, trainer.env_params
+    net = trainer.network
+    network = {
+        "obs_size": int(trainer.obs_size),
+        "onehot_sizes": None if net.onehot_sizes is None else list(net.onehot_sizes),
+        "hidden_sizes": list(net.hidden_sizes),
+        "dueling": bool(net.dueling),
+        "layer_norm": bool(net.layer_norm),
+        "layer_norm_epsilon": LAYER_NORM_EPSILON,
+        "num_actions": int(net.num_actions),
+        "trained_compute_dtype": net.compute_dtype,
+        "input": "float32 [batch, obs_size]: the env's observation as float32",
+        "output": "Q-values [batch, num_actions]; the policy takes the first largest",
+    }
+    env_config = getattr(env, "config", None)
+    return _jsonable(
+        {
+            "format": FORMAT,
+            "format_version": FORMAT_VERSION,
+            "env_id": config.env,
+            "env_kwargs": dict(config.env_kwargs),
+            "env_config": None if env_config is None else _config_dict(env_config),
+            "algo": config.algo,
+            "network": network,
+            "observation": observation_metadata(env, env_params),
+            "actions": action_metadata(env),
+            "sensors": sensor_metadata(env),
+            "source": {"jaxnav_version": __version__, **(source or {})},
+        }
+    )
+
+
+def _config_dict(config: Any) -> dict[str, Any]:
+    return {f.name: getattr(config, f.name) for f in dataclasses.fields(config)}
+
+
+# ------------------------------------------------------------------ weights
+def policy_arrays(network: QNetwork, params: Any) -> dict[str, np.ndarray]:
+    """The network's parameters (one seed, flax's tree) under the plain names of
+    ``jaxnav.deploy.policy``, as float32 numpy arrays."""
+    p = jax.device_get(params)["params"]
+    out = {}
+    for i in range(len(network.hidden_sizes)):
+        out[f"dense{i}_kernel"] = p[f"Dense_{i}"]["kernel"]
+        out[f"dense{i}_bias"] = p[f"Dense_{i}"]["bias"]
+        if network.layer_norm:
+            out[f"norm{i}_scale"] = p[f"LayerNorm_{i}"]["scale"]
+            out[f"norm{i}_bias"] = p[f"LayerNorm_{i}"]["bias"]
+    if network.dueling:
+        for head in ("value", "advantage"):
+            out[f"{head}_kernel"], out[f"{head}_bias"] = p[head]["kernel"], p[head]["bias"]
+    else:
+        last = p[f"Dense_{len(network.hidden_sizes)}"]
+        out["head_kernel"], out["head_bias"] = last["kernel"], last["bias"]
+    return {k: np.asarray(v, np.float32) for k, v in out.items()}
+
+
+def flax_params(arrays: dict[str, np.ndarray], network: dict[str, Any]) -> dict[str, Any]:
+    """The inverse of ``policy_arrays``: ``QNetwork`` parameters from exported arrays and the
+    metadata's ``network`` (to evaluate or render an exported policy with JAX)."""
+    p: dict[str, Any] = {}
+    n = len(network["hidden_sizes"])
+    for i in range(n):
+        p[f"Dense_{i}"] = {"kernel": arrays[f"dense{i}_kernel"], "bias": arrays[f"dense{i}_bias"]}
+        if network["layer_norm"]:
+            scale, bias = arrays[f"norm{i}_scale"], arrays[f"norm{i}_bias"]
+            p[f"LayerNorm_{i}"] = {"scale": scale, "bias": bias}
+    if network["dueling"]:
+        for head in ("value", "advantage"):
+            p[head] = {"kernel": arrays[f"{head}_kernel"], "bias": arrays[f"{head}_bias"]}
+    else:
+        p[f"Dense_{n}"] = {"kernel": arrays["head_kernel"], "bias": arrays["head_bias"]}
+    return {"params": jax.tree.map(jnp.asarray, p)}
+
+
+# What a policy needs of an env other than its own (another id, e.g. a maze file): the fields
+# that shape its observation and its actions' effect (and the robot's fast CPU backend)
+CARRIED_FIELDS = {
+    "robot": (
+        "num_lasers", "laser_fov", "laser_range", "obs_absolute", "obs_proximity",
+        "obs_heading", "obs_goal_bearing", "waypoint_cells", "frames", "speed", "turn_speed",
+        "dt", "radius", "backend",
+    ),
+    "grid": ("size", "obs_mode", "sensor_radius"),
+}  # fmt: skip
+
+
+def env_for(
+    policy: Policy, env_id: str | None = None, overrides: dict[str, Any] | None = None
+) -> tuple[str, dict[str, Any]]:
+    """``(env id, env kwargs)`` to run ``policy`` on: its own env with ``overrides`` on its
+    kwargs, or the env ``env_id`` with the policy's ``CARRIED_FIELDS`` and ``overrides``."""
+    meta = policy.metadata
+    overrides = dict(overrides or {})
+    if env_id is None or env_id == meta["env_id"]:
+        return meta["env_id"], {**meta["env_kwargs"], **overrides}
+    family = "robot" if meta.get("sensors") else "grid"
+    trained = meta.get("env_config") or {}
+    carried = {k: trained[k] for k in CARRIED_FIELDS[family] if k in trained}
+    return env_id, {**carried, **overrides}
+
+
+def to_trainer(
+    policy: Policy, env_id: str | None = None, overrides: dict[str, Any] | None = None
+) -> tuple[Any, Any]:
+    """``(trainer, params)`` to run an exported policy in the simulator with JAX
+    (``jaxnav.evaluate``, ``jaxnav.render``): its network on the env of ``env_for``, the
+    parameters stacked as one seed's; ``ValueError`` where that env's observations do not fit
+    the network."""
+    from jaxnav.train import Trainer
+
+    net = policy.network
+    env_id, kwargs = env_for(policy, env_id, overrides)
+    # the network as trained; TrainConfig's defaults for the rest, which acting never reads
+    config = TrainConfig(
+        env=env_id,
+        env_kwargs=kwargs,
+        hidden_sizes=tuple(net["hidden_sizes"]),
+        dueling=net["dueling"],
+        layer_norm=net["layer_norm"],
+    )
+    trainer = Trainer(config)
+    onehot = net["onehot_sizes"]
+    want = (net["obs_size"], None if onehot is None else tuple(onehot))
+    check_input_fits(env_id, trainer.network_input, want)
+    params = flax_params(policy.arrays, net)
+    return trainer, jax.tree.map(lambda x: x[None], params)
+
+
+def load_pretrained(
+    name: str, env_id: str | None = None, overrides: dict[str, Any] | None = None
+) -> tuple[TrainConfig, Any, Any]:
+    """``(config, trainer, params)`` of the shipped policy ``name`` (``jaxnav.pretrained``) on
+    its own env or on ``env_id`` (``to_trainer``), as ``run_dir.load_run_on`` gives a run's."""
+    from jaxnav import pretrained
+
+    trainer, params = to_trainer(pretrained.load(name), env_id, overrides)
+    return trainer.config, trainer, params
+
+
+# ------------------------------------------------------------------ ONNX
+def onnx_model(arrays: dict[str, np.ndarray], metadata: dict[str, Any]) -> Any:
+    """The network as an ``onnx.ModelProto`` (opset 17), metadata in ``metadata_props``."""
+    import onnx
+    from onnx import TensorProto, helper, numpy_helper
+
+    net = metadata["network"]
+    nodes: list[Any] = []
+    weights: list[Any] = []
+
+    def const(name: str, value: np.ndarray) -> str:
+        weights.append(numpy_helper.from_array(np.asarray(value), name))
+        return name
+
+    def node(op: str, inputs: list[str], output: str, **attrs: Any) -> str:
+        nodes.append(helper.make_node(op, inputs, [output], name=output, **attrs))
+        return output
+
+    x = "obs"
+    if net["onehot_sizes"] is not None:  # jaxnav.agents.dqn.expand_onehot, column by column
+        parts = []
+        for i, n in enumerate(net["onehot_sizes"]):
+            column = node("Gather", [x, const(f"column{i}", np.array([i], np.int64))],
+                          f"obs_{i}", axis=1)  # fmt: skip
+            if n:
+                index = node("Cast", [column], f"obs_{i}_int", to=TensorProto.INT32)
+                categories = const(f"categories{i}", np.arange(n, dtype=np.int32))
+                hit = node("Equal", [index, categories], f"obs_{i}_is")
+                column = node("Cast", [hit], f"obs_{i}_onehot", to=TensorProto.FLOAT)
+            parts.append(column)
+        x = node("Concat", parts, "features", axis=1)
+    for i in range(len(net["hidden_sizes"])):
+        x = node("MatMul", [x, const(f"dense{i}_kernel", arrays[f"dense{i}_kernel"])], f"h{i}_mm")
+        x = node("Add", [x, const(f"dense{i}_bias", arrays[f"dense{i}_bias"])], f"h{i}_dense")
+        if net["layer_norm"]:
+            scale = const(f"norm{i}_scale", arrays[f"norm{i}_scale"])
+            bias = const(f"norm{i}_bias", arrays[f"norm{i}_bias"])
+            x = node("LayerNormalization", [x, scale, bias], f"h{i}_norm", axis=-1,
+                     epsilon=float(net["layer_norm_epsilon"]))  # fmt: skip
+        x = node("Relu", [x], f"h{i}")
+    if net["dueling"]:
+        v = node("MatMul", [x, const("value_kernel", arrays["value_kernel"])], "value_mm")
+        v = node("Add", [v, const("value_bias", arrays["value_bias"])], "value")
+        a = node("MatMul", [x, const("advantage_kernel", arrays["advantage_kernel"])], "adv_mm")
+        a = node("Add", [a, const("advantage_bias", arrays["advantage_bias"])], "advantage")
+        mean = node("ReduceMean", [a], "advantage_mean", axes=[1], keepdims=1)
+        q = node("Add", [v, a], "value_plus_advantage")  # V + A - mean(A), QNetwork's order
+        node("Sub", [q, mean], "q_values")
+    else:
+        q = node("MatMul", [x, const("head_kernel", arrays["head_kernel"])], "head_mm")
+        node("Add", [q, const("head_bias", arrays["head_bias"])], "q_values")
+    # the first largest Q-value, as jnp.argmax
+    node("ArgMax", ["q_values"], "action", axis=1, keepdims=0, select_last_index=0)
+    graph = helper.make_graph(
+        nodes,
+        "jaxnav_policy",
+        [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["batch", net["obs_size"]])],
+        [
+            helper.make_tensor_value_info(
+                "q_values", TensorProto.FLOAT, ["batch", net["num_actions"]]
+            ),
+            helper.make_tensor_value_info("action", TensorProto.INT64, ["batch"]),
+        ],
+        initializer=weights,
+    )
+    model = helper.make_model(
+        graph,
+        producer_name="jaxnav",
+        producer_version=__version__,
+        opset_imports=[helper.make_opsetid("", ONNX_OPSET)],
+        ir_version=ONNX_IR_VERSION,
+        doc_string=f"jaxnav policy for {metadata['env_id']}: Q-values and the greedy action",
+    )
+    helper.set_model_props(model, {METADATA_KEY: json.dumps(metadata)})
+    onnx.checker.check_model(model, full_check=True)
+    return model
+
+
+def onnx_metadata(path: str | os.PathLike) -> dict[str, Any]:
+    """The jaxnav metadata of an exported ONNX model."""
+    import onnx
+
+    props = {p.key: p.value for p in onnx.load(os.fspath(path)).metadata_props}
+    if METADATA_KEY not in props:
+        raise ValueError(f"{path}: not a jaxnav policy (no {METADATA_KEY!r} metadata)")
+    return json.loads(props[METADATA_KEY])
+
+
+# ------------------------------------------------------------------ writing
+def write_policy(
+    arrays: dict[str, np.ndarray], metadata: dict[str, Any], out: Path, fmt: str
+) -> Path:
+    """Write ``fmt`` (npz or onnx) to ``out`` through a hidden temporary file renamed at the
+    end, so ``out`` is never half written."""
+    if fmt not in FORMATS:
+        raise ValueError(f"--format {fmt}: must be one of {', '.join(FORMATS)}")
+    if fmt == "onnx":
+        payload = onnx_model(arrays, metadata).SerializeToString()  # built (and checked) first
+    tmp = out.with_name(f".{out.name}.partial")
+    try:
+        with open(tmp, "wb") as f:
+            if fmt == "npz":
+                np.savez_compressed(f, **arrays, metadata=np.array(json.dumps(metadata)))
+            else:
+                f.write(payload)
+        os.replace(tmp, out)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return out
+
+
+def load_run(run: Path, run_seed: int | None = None) -> tuple[Any, Any, int]:
+    """``(trainer, params of one seed, that seed)`` of the trained run directory ``run``
+    (default: its first seed); ``ValueError`` for a directory that is not a complete run."""
+    from jaxnav.train import Trainer
+
+    config = run_dir.load_config(run)
+    seeds = run_dir.seeds_of(config)
+    seed = seeds[0] if run_seed is None else run_seed
+    if seed not in seeds:
+        raise ValueError(f"--run-seed {seed}: the run has seeds {seeds}")
+    if not (run / "params").is_dir():
+        raise ValueError(f"{run}: no trained parameters (params/); is the run complete?")
+    trainer = Trainer(config)
+    params = run_dir.load_trained_params(run, trainer)
+    return trainer, jax.tree.map(lambda x: x[seeds.index(seed)], params), seed
+
+
+def run_evaluation(run: Path, seed: int, seeds: list[int]) -> dict[str, Any] | None:
+    """The run's own greedy evaluation of ``seed`` (summary.json), where there is one."""
+    try:
+        summary = json.loads((run / "summary.json").read_text())
+        row = summary["trained_per_seed"][seeds.index(seed)]
+    except (OSError, KeyError, IndexError, ValueError):
+        return None
+    kept = {k: v for k, v in row.items() if isinstance(v, (int, float)) or v is None}
+    # the training CLI evaluates on the episodes of seed 10,000 (runner.finish_run)
+    return {"episodes": summary.get("eval_episodes"), "seed": 10_000, **kept}
+
+
+def export_run(
+    run: Path, fmt: str, out: Path | None = None, run_seed: int | None = None
+) -> tuple[Path, dict[str, Any]]:
+    """Export seed ``run_seed`` (default: the first) of the run directory ``run`` as ``fmt``
+    to ``out`` (default ``RUN/policy.FMT``); ``(path written, metadata)``."""
+    out = run / f"policy.{fmt}" if out is None else out
+    check_out(out, fmt)
+    trainer, params, seed = load_run(run, run_seed)
+    source = {
+        "run": os.fspath(run),
+        "run_seed": seed,
+        "train_config": run_dir.config_to_json(trainer.config),
+        "run_evaluation": run_evaluation(run, seed, run_dir.seeds_of(trainer.config)),
+    }
+    metadata = policy_metadata(trainer, source)
+    arrays = policy_arrays(trainer.network, params)
+    return write_policy(arrays, metadata, out, fmt), metadata
+
+
+def check_out(out: Path, fmt: str) -> None:
+    """``ValueError`` before any work where ``fmt`` or ``out`` cannot be written."""
+    if fmt not in FORMATS:
+        raise ValueError(f"--format {fmt}: must be one of {', '.join(FORMATS)}")
+    if out.suffix != f".{fmt}":
+        raise ValueError(f"--out {out}: must end in .{fmt} for --format {fmt}")
+    if not out.parent.is_dir():
+        raise ValueError(f"--out {out}: directory {out.parent} does not exist")
+    if out.is_dir():
+        raise ValueError(f"--out {out}: is a directory")
+    if fmt == "onnx":
+        try:
+            import onnx  # noqa: F401
+        except ImportError:
+            raise ValueError(
+                "--format onnx needs the onnx package: pip install 'jaxnav[export]'"
+            ) from None
+
+
+# ------------------------------------------------------------------ command line
+def main(argv: Sequence[str] | None = None) -> int:
+    import argparse
+
+    from jaxnav.cli import Parser, UsageError, fail
+
+    prog = "jaxnav.export"
+    p = Parser(
+        prog="python -m jaxnav.export",
+        description="Write a trained run's policy as one self-contained file: the network "
+        "and its metadata (observation layout, actions, sensors, env).",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    p.add_argument("run", type=Path, help="run directory written by jaxnav.train")
+    p.add_argument("--format", choices=FORMATS, default="npz", help="npz (numpy) or onnx")
+    p.add_argument("--out", type=Path, help="output file (default: RUN/policy.FORMAT)")
+    p.add_argument("--run-seed", type=int, help="which trained seed (default: the run's first)")
+    try:
+        args = p.parse_args(argv)
+        if not args.run.is_dir():
+            raise ValueError(f"{args.run}: not a run directory (no such directory)")
+        path, metadata = export_run(args.run, args.format, args.out, args.run_seed)
+    except (UsageError, ValueError, FileNotFoundError) as e:
+        return fail(prog, str(e))
+    net = metadata["network"]
+    size = path.stat().st_size
+    print(
+        f"wrote {path} ({size / 1024:,.0f} KiB): {metadata['env_id']}, "
+        f"{net['obs_size']} inputs -> {'-'.join(map(str, net['hidden_sizes']))} -> "
+        f"{net['num_actions']} actions ({', '.join(a['name'] for a in metadata['actions'])})"
+    )
+    if net["trained_compute_dtype"] != "float32":
+        print(
+            f"note: trained with {net['trained_compute_dtype']} matrix products; the export "
+            "computes in float32 (Q-values differ by that rounding)"
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

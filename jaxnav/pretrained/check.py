@@ -1,0 +1,50 @@
+"""Measuring a policy's success in the simulator, for the manifest and its test (JAX)."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+from jaxnav.deploy.policy import Policy
+from jaxnav.evaluate import evaluate_seeds
+from jaxnav.export import to_trainer
+from jaxnav.pretrained import MANIFEST, sha256
+
+MEASURED = ("success_rate", "collision_rate", "timeout_rate", "mean_steps", "mean_path_ratio")
+
+
+def measure(policy: Policy, episodes: int, seed: int) -> dict[str, Any]:
+    """The greedy policy's outcomes on ``episodes`` fresh episodes of its env (the starts and
+    goals of ``seed``, layouts round-robin), as ``python -m jaxnav.evaluate`` measures them."""
+    trainer, params = to_trainer(policy)
+    row = evaluate_seeds(trainer, params, episodes, seed)[0]
+    return {"episodes": episodes, "seed": seed, **{k: row[k] for k in MEASURED}}
+
+
+def add_entry(
+    name: str, file: Path, commands: list[str], episodes: int, seed: int, note: str = ""
+) -> dict[str, Any]:
+    """Measure the policy in ``file`` (in the pretrained folder) and write its manifest entry
+    (replacing one of the same name); returns the entry."""
+    policy = Policy.load(file)
+    meta = policy.metadata
+    entry = {
+        "file": file.name,
+        "sha256": sha256(file),
+        "env_id": meta["env_id"],
+        "env_kwargs": meta["env_kwargs"],
+        "network": "-".join(map(str, meta["network"]["hidden_sizes"])),
+        "commands": commands,
+        "measured": measure(policy, episodes, seed),
+        "measured_with": f"python -m jaxnav.evaluate --pretrained {name} --episodes {episodes} "
+        f"--seed {seed}",
+        "note": note,
+    }
+    doc = json.loads(MANIFEST.read_text()) if MANIFEST.exists() else {"policies": {}}
+    doc["policies"][name] = entry
+    tmp = MANIFEST.with_name(MANIFEST.name + ".tmp")
+    tmp.write_text(json.dumps(doc, indent=2) + "\n")
+    os.replace(tmp, MANIFEST)
+    return entry
