@@ -1,0 +1,245 @@
+"""Fault injection: a run's directory, checkpoints and outputs under the faults a hostile user
+or a failing machine brings (symlinks at ``--out``, files appearing, kills at every step of
+finishing, damaged checkpoints, a second writer, a full disk). Each case ends in one line
+naming the value and its exit code, nothing replaced, and a run that ``--resume`` completes.
+Tiny configs: 4 logging intervals of 32 env steps."""
+
+from __future__ import annotations
+
+import errno
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from conftest import TINY_FLAGS  # pytest puts tests/ on sys.path
+
+from jaxnav import checkpoints, run_dir, runner
+from jaxnav.train.__main__ import main as train_main
+
+TINY = [*TINY_FLAGS, "--total-timesteps", "128", "--eval-episodes", "2", "--checkpoint-every", "32"]
+
+
+class Killed(BaseException):
+    """Stands for SIGKILL at a chosen moment: nothing after it runs, no handler sees it."""
+
+
+def one_line_error(capsys, code: int, got: int) -> str:
+    assert got == code
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "Traceback" not in err, err
+    return err
+
+
+def tree(path: Path) -> list[Path]:
+    return sorted(path.rglob("*"))
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory) -> str:
+    """metrics.csv of the tiny run, uninterrupted."""
+    out = tmp_path_factory.mktemp("ref") / "run"
+    assert train_main([*TINY, "--out", str(out)]) == 0
+    return (out / "metrics.csv").read_text()
+
+
+def assert_complete(out: Path, reference: str) -> None:
+    assert (out / "summary.json").is_file() and (out / "params").is_dir()
+    assert not (out / "checkpoints").exists() and not (out / run_dir.LOCK).exists()
+    assert not run_dir.partial_dir(out).exists()
+    assert (out / "metrics.csv").read_text() == reference
+
+
+# ------------------------------------------------------------------ runs that must finish
+@pytest.mark.parametrize("kind", ["dangling", "loop", "to_empty_dir", "empty_name", "dot"])
+def test_out_that_a_run_can_never_be_renamed_to_is_refused_first(kind, tmp_path, capsys):
+    out = tmp_path / "run"
+    if kind == "dangling":
+        out.symlink_to(tmp_path / "nowhere")
+    elif kind == "loop":
+        out.symlink_to(out)
+    elif kind == "to_empty_dir":
+        (tmp_path / "real").mkdir()
+        out.symlink_to(tmp_path / "real")
+    else:
+        out = Path("" if kind == "empty_name" else ".")
+    before = tree(tmp_path)
+    err = one_line_error(capsys, 2, train_main([*TINY, "--out", str(out)]))
+    assert err.startswith("jaxnav.train: error: ") and (
+        "symbolic link" in err or "not a run directory name" in err
+    )
+    assert tree(tmp_path) == before
+
+
+def test_file_appearing_in_out_during_training_then_resume_completes(
+    tmp_path, capsys, monkeypatch, reference
+):
+    out = tmp_path / "run"
+    out.mkdir()  # an empty --out is allowed
+    write_trained = run_dir.write_trained
+
+    def and_a_file_appears(*args, **kwargs):
+        (out / "intruder.txt").write_text("hello")
+        return write_trained(*args, **kwargs)
+
+    monkeypatch.setattr(run_dir, "write_trained", and_a_file_appears)
+    err = one_line_error(capsys, 2, train_main([*TINY, "--out", str(out)]))
+    assert "cannot rename the finished run" in err and f"--resume {out}" in err
+    assert (out / "intruder.txt").read_text() == "hello"  # not replaced
+    monkeypatch.setattr(run_dir, "write_trained", write_trained)
+    # resume refuses at once while the file is there, then completes without training
+    err = one_line_error(capsys, 2, train_main(["--resume", str(out)]))
+    assert "not an empty directory" in err
+    (out / "intruder.txt").unlink()
+    assert train_main(["--resume", str(out)]) == 0
+    assert "run saved to" in capsys.readouterr().out
+    assert_complete(out, reference)
+
+
+@pytest.mark.parametrize(
+    "moment", ["summary", "rmtree_checkpoints", "rename", "write_trained_twice"]
+)
+def test_kill_at_each_step_of_finishing_then_resume_completes(
+    moment, tmp_path, capsys, monkeypatch, reference
+):
+    """Finishing is repeatable: a kill before summary.json retrains nothing (the final
+    checkpoint) and rewrites params/; a kill after it only renames."""
+    out = tmp_path / "run"
+    target = {
+        "summary": (run_dir, "write_json"),
+        "rmtree_checkpoints": (run_dir.shutil, "rmtree"),
+        "rename": (Path, "rename"),
+        "write_trained_twice": (run_dir, "write_metrics_csv"),
+    }[moment]
+    original = getattr(*target)
+    calls = []
+
+    def killed(*args, **kwargs):
+        calls.append(args)
+        name = str(args[0]) if args else ""
+        if moment == "summary" and not name.endswith("summary.json"):
+            return original(*args, **kwargs)
+        if moment == "rmtree_checkpoints" and not name.endswith("checkpoints"):
+            return original(*args, **kwargs)
+        if moment == "write_trained_twice" and not (
+            name.endswith("timing.csv") and (Path(name).parent / "params").exists()
+        ):
+            return original(*args, **kwargs)
+        if moment == "rmtree_checkpoints":
+            original(*args, **kwargs)  # killed just after the checkpoints went
+        raise Killed
+
+    monkeypatch.setattr(*target, killed)
+    with pytest.raises(Killed):
+        train_main([*TINY, "--out", str(out)])
+    monkeypatch.setattr(*target, original)
+    assert run_dir.partial_dir(out).is_dir()
+    assert train_main(["--resume", str(out)]) == 0
+    capsys.readouterr()
+    assert_complete(out, reference)
+    assert train_main(["--resume", str(out)]) == 2  # complete: nothing to resume
+    assert "is complete" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------ one writer at a time
+def test_second_writer_is_refused_and_a_dead_writers_lock_is_recovered(tmp_path, capsys, reference):
+    out = tmp_path / "run"
+    partial = run_dir.partial_dir(out)
+    holder = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "import sys, time; from pathlib import Path; from jaxnav import run_dir; "
+            f"run_dir.lock_run(Path({str(partial)!r}), new=True); print('locked', flush=True); "
+            "time.sleep(600)",
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)},
+    )
+    try:
+        assert holder.stdout.readline().strip() == "locked"
+        # a new run at the same --out while another starts one there
+        err = one_line_error(capsys, 2, train_main([*TINY, "--out", str(out)]))
+        assert "unfinished run is in" in err
+        # the holder writes config.json as a real run would, then another --resume is refused
+        config_doc = out.parent / "doc"
+        assert train_main([*TINY, "--out", str(config_doc), "--total-timesteps", "32"]) == 0
+        capsys.readouterr()
+        (partial / "config.json").write_bytes((config_doc / "config.json").read_bytes())
+        err = one_line_error(capsys, 2, train_main(["--resume", str(out)]))
+        assert f"another process (pid {holder.pid}) is writing this run" in err
+    finally:
+        holder.kill()  # SIGKILL: the OS drops its flock
+        holder.wait()
+    # the lock of the dead process is no obstacle: the run (of 32 steps) resumes and completes
+    assert train_main(["--resume", str(out)]) == 0
+    assert (out / "summary.json").is_file() and not partial.exists()
+
+
+def test_lock_is_held_while_training_and_released_when_done(tmp_path, monkeypatch, capsys):
+    out = tmp_path / "run"
+    seen = []
+    train_seeds = runner.train_seeds
+
+    def try_second_writer(*args, **kwargs):
+        with pytest.raises(ValueError, match="another process .* is writing this run"):
+            run_dir.lock_run(run_dir.partial_dir(out), new=False)
+        seen.append(True)
+        return train_seeds(*args, **kwargs)
+
+    monkeypatch.setattr(runner, "train_seeds", try_second_writer)
+    assert train_main([*TINY, "--out", str(out), "--total-timesteps", "32"]) == 0
+    assert seen and not (out / run_dir.LOCK).exists()
+
+
+# ------------------------------------------------------------------ disk full
+def test_disk_full_is_one_line_exit_4_keeps_the_checkpoint_and_resume_completes(
+    tmp_path, capsys, monkeypatch, reference
+):
+    out = tmp_path / "run"
+    save = checkpoints.Checkpoints.save
+
+    def full_at_third(self, logs_done, *args, **kwargs):
+        if logs_done == 3:
+            path = self.directory / str(logs_done)
+            raise OSError(errno.ENOSPC, "No space left on device", str(path))
+        return save(self, logs_done, *args, **kwargs)
+
+    monkeypatch.setattr(checkpoints.Checkpoints, "save", full_at_third)
+    err = one_line_error(capsys, 4, train_main([*TINY, "--out", str(out)]))
+    assert err.startswith("jaxnav.train: no space left on device while writing ")
+    assert err.endswith(f"continue with: python -m jaxnav.train --resume {out}")
+    names = os.listdir(run_dir.partial_dir(out) / "checkpoints")
+    assert "2" in names and "3" not in names
+    monkeypatch.setattr(checkpoints.Checkpoints, "save", save)
+    assert train_main(["--resume", str(out)]) == 0
+    capsys.readouterr()
+    assert_complete(out, reference)
+
+
+def test_disk_full_while_finishing_keeps_the_run_resumable(
+    tmp_path, capsys, monkeypatch, reference
+):
+    out = tmp_path / "run"
+    write_json = run_dir.write_json
+
+    def full(path, obj):
+        if path.name == "summary.json":
+            raise OSError(errno.ENOSPC, "No space left on device", str(path))
+        return write_json(path, obj)
+
+    monkeypatch.setattr(run_dir, "write_json", full)
+    err = one_line_error(capsys, 4, train_main([*TINY, "--out", str(out)]))
+    assert "summary.json" in err
+    monkeypatch.setattr(run_dir, "write_json", write_json)
+    assert train_main(["--resume", str(out)]) == 0
+    capsys.readouterr()
+    assert_complete(out, reference)
+
+
+def test_resume_hint_is_shell_quoted(tmp_path, capsys):
+    out = tmp_path / "a run; rm -rf x"
+    assert train_main([*TINY, "--out", str(out), "--total-timesteps", "32"]) == 0
+    assert f"--resume '{out}'" in capsys.readouterr().out
