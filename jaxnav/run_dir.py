@@ -27,7 +27,7 @@ import numpy as np
 import orbax.checkpoint as ocp
 
 from jaxnav.agents import dqn
-from jaxnav.checkpoints import this_process_only
+from jaxnav.checkpoints import sha256_of, this_process_only
 from jaxnav.config import TrainConfig
 from jaxnav.train import Trainer
 
@@ -265,6 +265,16 @@ def load_checkpointing(run: Path) -> dict[str, int]:
     """The checkpoint flags saved with a run by ``python -m jaxnav.train`` (none in runs
     written before they were saved)."""
     return json.loads((run / "config.json").read_text()).get("checkpointing", {})
+
+
+def input_checksums(run: Path, config: TrainConfig) -> dict[str, str]:
+    """SHA-256 of the files a run's training state depends on: its config.json and its maze
+    file (if any); saved with every checkpoint and compared on ``--resume``."""
+    sums = {"config.json": sha256_of(run / "config.json")}
+    maze_file = config.env_kwargs.get("maze_file")
+    if maze_file is not None:
+        sums[f"maze file {maze_file}"] = sha256_of(Path(maze_file))
+    return sums
 
 
 def config_document(config: TrainConfig, trainer: Trainer) -> dict[str, Any]:

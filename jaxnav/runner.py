@@ -153,12 +153,17 @@ def train_seeds(
     checkpoints = (  # every process restores; process 0 alone saves
         None
         if saving is None
-        else Checkpoints(saving.directory / "checkpoints", saving.keep, writer=is_primary())
+        else Checkpoints(
+            saving.directory / "checkpoints",
+            saving.keep,
+            writer=is_primary(),
+            inputs=run_dir.input_checksums(saving.directory, c),
+        )
     )
-    done = 0 if checkpoints is None else checkpoints.latest() or 0
+    done = 0 if checkpoints is None else checkpoints.newest_intact(_warn) or 0
     if done:
         try:
-            done, state, metrics, meta = checkpoints.restore(state_like, metrics)
+            done, state, metrics, meta = checkpoints.restore(state_like, metrics, done)
             state = sharding.place(state, trainer.mesh, sharding.state_specs(state_like))
         except Exception as e:  # orbax raises many kinds for a damaged or foreign checkpoint
             msg = f"{checkpoints.directory}: cannot restore checkpoint {done}: {e}"
@@ -196,6 +201,10 @@ def train_seeds(
     if checkpoints is not None:
         checkpoints.close()
     return state, metrics, compile_s, train_s
+
+
+def _warn(message: str) -> None:
+    print_primary(f"warning: {message}", file=sys.stderr, flush=True)
 
 
 def _signal_on_any_host(received: list[int]) -> int:

@@ -7,11 +7,14 @@ Tiny configs: 4 logging intervals of 32 env steps."""
 from __future__ import annotations
 
 import errno
+import json
 import os
+import random
 import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 from conftest import TINY_FLAGS  # pytest puts tests/ on sys.path
 
@@ -243,3 +246,84 @@ def test_resume_hint_is_shell_quoted(tmp_path, capsys):
     out = tmp_path / "a run; rm -rf x"
     assert train_main([*TINY, "--out", str(out), "--total-timesteps", "32"]) == 0
     assert f"--resume '{out}'" in capsys.readouterr().out
+
+
+# ------------------------------------------------------------------ checkpoint checksums
+def interrupted_after(out: Path, monkeypatch, last: int) -> None:
+    """Train the tiny run, killed just after saving checkpoint ``last``."""
+    save = checkpoints.Checkpoints.save
+
+    def then_killed(self, logs_done, *args, **kwargs):
+        save(self, logs_done, *args, **kwargs)
+        if logs_done == last:
+            raise Killed
+
+    monkeypatch.setattr(checkpoints.Checkpoints, "save", then_killed)
+    with pytest.raises(Killed):
+        train_main([*TINY, "--out", str(out)])
+    monkeypatch.setattr(checkpoints.Checkpoints, "save", save)
+
+
+def flip_a_byte(step_dir: Path, rng: random.Random) -> Path:
+    files = [p for p in sorted(step_dir.rglob("*")) if p.is_file()]
+    path = rng.choice(files)
+    data = bytearray(path.read_bytes())
+    if data:
+        i = rng.randrange(len(data))
+        data[i] ^= 1 << rng.randrange(8)
+    else:
+        data = bytearray(b"x")
+    path.write_bytes(bytes(data))
+    return path
+
+
+@pytest.mark.parametrize("trial", range(4))
+def test_flipped_byte_in_the_newest_checkpoint_falls_back_to_the_previous_one(
+    trial, tmp_path, capsys, monkeypatch, reference
+):
+    out = tmp_path / "run"
+    interrupted_after(out, monkeypatch, 3)
+    ckpts = run_dir.partial_dir(out) / "checkpoints"
+    flipped = flip_a_byte(ckpts / "3", random.Random(trial))
+    capsys.readouterr()
+    assert train_main(["--resume", str(out)]) == 0
+    warnings = [x for x in capsys.readouterr().err.splitlines() if x.startswith("warning:")]
+    assert len(warnings) == 1, warnings
+    assert "checkpoint 3 is damaged" in warnings[0] and "resuming from checkpoint 2" in warnings[0]
+    assert flipped.name in warnings[0] or "checksums" in warnings[0]
+    assert_complete(out, reference)  # bitwise the uninterrupted run's metrics
+
+
+def test_no_intact_checkpoint_is_refused_in_one_line(tmp_path, capsys, monkeypatch):
+    out = tmp_path / "run"
+    interrupted_after(out, monkeypatch, 3)
+    ckpts = run_dir.partial_dir(out) / "checkpoints"
+    for step in ("2", "3"):
+        flip_a_byte(ckpts / step, random.Random(int(step)))
+    capsys.readouterr()
+    before = tree(tmp_path)
+    err = one_line_error(capsys, 2, train_main(["--resume", str(out)]))
+    assert "no intact checkpoint: checkpoint 3 is damaged" in err and "checkpoint 2" in err
+    assert tree(tmp_path) == before  # the damaged ones are kept for a look
+
+
+def test_config_or_maze_file_changed_since_the_checkpoint_is_refused(tmp_path, capsys, monkeypatch):
+    out = tmp_path / "run"
+    interrupted_after(out, monkeypatch, 2)
+    config = run_dir.partial_dir(out) / "config.json"
+    doc = json.loads(config.read_text())
+    doc["environment"]["python"] = "edited"
+    config.write_text(json.dumps(doc))
+    capsys.readouterr()
+    err = one_line_error(capsys, 2, train_main(["--resume", str(out)]))
+    assert "config.json changed since checkpoint 2 was saved" in err
+    # the maze file: the same check through the Checkpoints inputs
+    state, metrics = {"x": np.zeros(3, np.float32)}, {"loss": np.zeros((1, 2), np.float32)}
+    saving = checkpoints.Checkpoints(tmp_path / "c", 1, inputs={"maze file m.txt": "aa"})
+    saving.save(1, state, metrics, {"seconds": {}})
+    saving.close()
+    edited = checkpoints.Checkpoints(tmp_path / "c", 1, inputs={"maze file m.txt": "bb"})
+    with pytest.raises(ValueError, match="maze file m.txt changed since checkpoint 1"):
+        edited.newest_intact(print)
+    same = checkpoints.Checkpoints(tmp_path / "c", 1, inputs={"maze file m.txt": "aa"})
+    assert same.newest_intact(print) == 1
