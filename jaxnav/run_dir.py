@@ -29,6 +29,7 @@ import orbax.checkpoint as ocp
 from jaxnav.agents import dqn
 from jaxnav.checkpoints import sha256_of, this_process_only
 from jaxnav.config import TrainConfig
+from jaxnav.safe_io import remove_quietly
 from jaxnav.train import Trainer
 
 PACKAGES = ("jaxnav", "jax", "jaxlib", "flax", "optax", "chex", "orbax-checkpoint", "mujoco-mjx")
@@ -198,8 +199,12 @@ def config_from_json(d: dict[str, Any]) -> TrainConfig:
 def write_json(path: Path, obj: Any) -> None:
     """Write atomically: a crash leaves the old file or the new one, never half of one."""
     tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=2) + "\n")
-    os.replace(tmp, path)
+    try:
+        tmp.write_text(json.dumps(obj, indent=2) + "\n")
+        os.replace(tmp, path)
+    except BaseException:  # a full disk, a directory at ``path``: no stray .tmp
+        remove_quietly(tmp)
+        raise
 
 
 def write_metrics_csv(path: Path, metrics: dict[str, np.ndarray], seeds: list[int]) -> None:

@@ -10,6 +10,7 @@ import errno
 import json
 import os
 import random
+import stat
 import subprocess
 import sys
 from pathlib import Path
@@ -327,3 +328,48 @@ def test_config_or_maze_file_changed_since_the_checkpoint_is_refused(tmp_path, c
         edited.newest_intact(print)
     same = checkpoints.Checkpoints(tmp_path / "c", 1, inputs={"maze file m.txt": "aa"})
     assert same.newest_intact(print) == 1
+
+
+# ------------------------------------------------------------------ outputs never replace
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("trained") / "run"
+    assert train_main([*TINY, "--out", str(out), "--total-timesteps", "32"]) == 0
+    return out
+
+
+def special_files(tmp_path: Path) -> dict[str, Path]:
+    """A directory, a FIFO, a character device (where the container lets us make one), a
+    dangling symlink and a symlink loop, each named like an output file."""
+    made = {"dir": tmp_path / "dir.json", "fifo": tmp_path / "fifo.json"}
+    made["dir"].mkdir()
+    os.mkfifo(made["fifo"])
+    made["dangling"] = tmp_path / "dangling.json"
+    made["dangling"].symlink_to(tmp_path / "nowhere")
+    made["loop"] = tmp_path / "loop.json"
+    made["loop"].symlink_to(made["loop"])
+    try:
+        os.mknod(tmp_path / "null.json", 0o666 | stat.S_IFCHR, os.makedev(1, 3))
+        made["chardev"] = tmp_path / "null.json"
+    except OSError:
+        pass  # no CAP_MKNOD here; the FIFO covers a non-regular node
+    return made
+
+
+def test_evaluate_and_render_refuse_outputs_that_are_not_regular_files(trained, tmp_path, capsys):
+    from jaxnav.evaluate.__main__ import main as evaluate_main
+    from jaxnav.render import main as render_main
+
+    for kind, path in special_files(tmp_path).items():
+        before = [(p, p.lstat()) for p in tree(tmp_path)]
+        for command, ext in ((evaluate_main, ".json"), (render_main, ".png")):
+            target = path.with_name(path.stem + ext) if ext != ".json" else path
+            if ext != ".json" and not os.path.lexists(target):
+                os.rename(path, target)  # the same kind of node, named .png
+                before = [(p, p.lstat()) for p in tree(tmp_path)]
+            err = one_line_error(
+                capsys, 2, command([str(trained), "--out", str(target), "--episodes", "1"])
+            )
+            assert f"--out {target}" in err, (kind, err)
+            assert [(p, p.lstat()) for p in tree(tmp_path)] == before, kind  # nothing replaced
+    assert not list(trained.glob("*.tmp")) and not list(tmp_path.glob(".*partial*"))

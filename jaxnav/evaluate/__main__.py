@@ -20,6 +20,7 @@ from jaxnav.evaluate import (
     seed_statistics,
 )
 from jaxnav.programs import enable_compilation_cache
+from jaxnav.safe_io import check_output_file
 
 
 def parser() -> argparse.ArgumentParser:
@@ -51,8 +52,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         config = run_dir.load_config(args.run)
         env_kwargs = {**(config.env_kwargs if env is None else {}), **overrides}
         out = args.out or args.run / "eval.json"
-        if not out.parent.is_dir():
-            raise ValueError(f"--out {out}: directory {out.parent} does not exist")
+        check_output_file(out)  # a directory or a device is refused, not replaced
         config, trainer, params = run_dir.load_run_on(args.run, env or config.env, env_kwargs)
     except (UsageError, ValueError, FileNotFoundError) as e:
         return fail(prog, str(e))
