@@ -373,3 +373,24 @@ def test_evaluate_and_render_refuse_outputs_that_are_not_regular_files(trained, 
             assert f"--out {target}" in err, (kind, err)
             assert [(p, p.lstat()) for p in tree(tmp_path)] == before, kind  # nothing replaced
     assert not list(trained.glob("*.tmp")) and not list(tmp_path.glob(".*partial*"))
+
+
+# ------------------------------------------------------------------ hostile inputs
+def test_hostile_env_inputs_are_one_line(tmp_path, capsys):
+    import jaxnav
+
+    fifo = tmp_path / "maze.txt"
+    os.mkfifo(fifo)  # reading it would block forever
+    cases = {
+        "FIFO maze file": ["--maze-file", str(fifo)],
+        "obs_heading=False": ["--env", "RobotSimple-v0", "--env-arg", "obs_heading=False"],
+        "deep nesting": ["--env-arg", "size=" + "[" * 50_000],
+    }
+    base = [a for a in TINY if a not in ("--env-arg", "size=5")]  # robot envs have no size
+    for name, argv in cases.items():
+        err = one_line_error(capsys, 2, train_main([*base, "--out", str(tmp_path / "r"), *argv]))
+        want = {"FIFO maze file": str(fifo), "obs_heading=False": "obs_heading='False'"}
+        assert want.get(name, "nested too deeply") in err, (name, err)
+    assert not (tmp_path / "r").exists() and not (tmp_path / ".r.partial").exists()
+    with pytest.raises(ValueError, match=r"unknown env id \['GridMaze-v0'\]"):
+        jaxnav.make(["GridMaze-v0"])
