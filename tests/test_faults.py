@@ -394,3 +394,10 @@ def test_hostile_env_inputs_are_one_line(tmp_path, capsys):
     assert not (tmp_path / "r").exists() and not (tmp_path / ".r.partial").exists()
     with pytest.raises(ValueError, match=r"unknown env id \['GridMaze-v0'\]"):
         jaxnav.make(["GridMaze-v0"])
+
+
+@pytest.mark.parametrize("port", ["99999999", "0", "65536"])
+def test_coordinator_port_out_of_range_is_refused(port, capsys):
+    argv = [*TINY, "--coordinator", f"localhost:{port}", "--num-processes", "2"]
+    err = one_line_error(capsys, 2, train_main([*argv, "--process-id", "0", "--out", "x"]))
+    assert f"--coordinator 'localhost:{port}'" in err and "[1, 65535]" in err

@@ -193,8 +193,8 @@ def start_hosts(args: argparse.Namespace) -> None:
     if args.resume is None and args.out is None:
         raise UsageError("--out is needed with several processes: all of them write one run")
     host, _, port = args.coordinator.rpartition(":")
-    if not host or not port.isdigit():
-        raise UsageError(f"--coordinator {args.coordinator!r}: use HOST:PORT")
+    if not host or not port.isdigit() or not 1 <= int(port) <= 65535:
+        raise UsageError(f"--coordinator {args.coordinator!r}: use HOST:PORT, PORT in [1, 65535]")
     runner.start_hosts(args.coordinator, args.num_processes, args.process_id)
 
 
