@@ -401,3 +401,33 @@ def test_coordinator_port_out_of_range_is_refused(port, capsys):
     argv = [*TINY, "--coordinator", f"localhost:{port}", "--num-processes", "2"]
     err = one_line_error(capsys, 2, train_main([*argv, "--process-id", "0", "--out", "x"]))
     assert f"--coordinator 'localhost:{port}'" in err and "[1, 65535]" in err
+
+
+# ------------------------------------------------------------------ out-of-range actions
+@pytest.mark.parametrize("env_id", ["GridMaze-v0", "RobotSimple-v0"])
+def test_out_of_range_actions_are_clipped_on_every_env_or_raise_when_checked(env_id):
+    import jax
+    import jax.numpy as jnp
+
+    import jaxnav
+
+    env, params = jaxnav.make(env_id)
+    key = jax.random.key(0)
+    _, state = env.reset(key, params)
+    n = env.num_actions
+
+    def step(action):
+        return env.step_no_reset(key, state, action, params)[1]
+
+    clipped = jax.jit(step)  # one compile for every action (eager robot steps are slow)
+    for bad, same_as in ((-1, 0), (-5, 0), (n, n - 1), (n + 4, n - 1), (2**31 - 1, n - 1)):
+        got, want = clipped(jnp.int32(bad)), clipped(jnp.int32(same_as))
+        assert all(
+            bool(jnp.array_equal(a, b))
+            for a, b in zip(jax.tree.leaves(got), jax.tree.leaves(want), strict=True)
+        ), (env_id, bad)
+    env.check_actions = True
+    checked = jax.jit(lambda a: step(a))  # a new function: jit caches traces per function
+    with pytest.raises(Exception, match=rf"action {n}: outside \[0, {n}\)"):
+        jax.block_until_ready(checked(jnp.int32(n)))
+    jax.block_until_ready(checked(jnp.int32(n - 1)))  # in range: fine
