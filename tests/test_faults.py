@@ -431,3 +431,55 @@ def test_out_of_range_actions_are_clipped_on_every_env_or_raise_when_checked(env
     with pytest.raises(Exception, match=rf"action {n}: outside \[0, {n}\)"):
         jax.block_until_ready(checked(jnp.int32(n)))
     jax.block_until_ready(checked(jnp.int32(n - 1)))  # in range: fine
+
+
+# ------------------------------------------------------------------ --env-arg fuzz by type
+def json_values():
+    from hypothesis import strategies as st
+
+    scalars = st.one_of(
+        st.none(),
+        st.booleans(),
+        st.integers(min_value=-(2**70), max_value=2**70),
+        st.floats(allow_nan=True, allow_infinity=True),
+        st.text(max_size=8),
+    )
+    return st.recursive(scalars, lambda x: st.lists(x, max_size=3), max_leaves=6)
+
+
+FUZZ_TRIED = {"cases": 0, "accepted": 0, "refused": 0}
+
+
+def test_env_arg_values_of_every_type_are_accepted_or_one_valueerror():
+    """Every env field given a value of every JSON type: ``env_config`` returns a config or
+    raises ValueError (the one line the commands print), never another exception."""
+    import dataclasses
+
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    from jaxnav import registration
+
+    fields = [
+        (env_id, f.name)
+        for env_id in ("GridMaze-v0", "RobotSimple-v0")
+        for f in dataclasses.fields(registration.env_config(env_id))
+        if f.name not in ("maze_file",)  # a path: the maze file fuzz is test_hostile_input's
+    ]
+
+    @settings(max_examples=300, deadline=None, database=None)
+    @given(field=st.sampled_from(fields), value=json_values())
+    def check(field, value):
+        env_id, name = field
+        FUZZ_TRIED["cases"] += 1
+        try:
+            registration.env_config(env_id, **{name: value})
+            registration.make(env_id, **{name: value})  # accepted: it must build
+        except ValueError as e:
+            assert "\n" not in str(e)
+            FUZZ_TRIED["refused"] += 1
+        else:
+            FUZZ_TRIED["accepted"] += 1
+
+    check()
+    print(FUZZ_TRIED)
