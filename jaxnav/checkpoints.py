@@ -7,10 +7,20 @@ One orbax ``CheckpointManager`` directory; the step number is the count of loggi
 done. Orbax writes each checkpoint to a temporary directory and renames it when complete, so a
 crash mid-save leaves the previous checkpoints intact (and the half-written one is ignored and
 cleaned up on the next open).
+
+Each checkpoint carries ``jaxnav_checksums.json``: the SHA-256 of every file orbax wrote and
+of the inputs the state depends on (the run's config.json and maze file). A resume verifies
+them and starts from the newest intact checkpoint (``newest_intact``): a flipped byte would
+otherwise restore as a different Adam moment without a word.
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
+import os
+import shutil
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -63,6 +73,26 @@ def _check_like(restored: Any, abstract: Any) -> None:
             )
 
 
+MANIFEST = "jaxnav_checksums.json"
+
+
+def sha256_of(path: Path) -> str:
+    """Hex SHA-256 of the file at ``path``."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _file_sums(step_dir: Path) -> dict[str, str]:
+    return {
+        str(p.relative_to(step_dir)): sha256_of(p)
+        for p in sorted(step_dir.rglob("*"))
+        if p.is_file() and p.name != MANIFEST
+    }
+
+
 class Checkpoints:
     """``save(logs_done, state, metrics, meta)`` / ``restore(like_state, like_metrics)``.
 
@@ -71,10 +101,19 @@ class Checkpoints:
     small JSON-able dict (wall times, which do not affect the results).
     """
 
-    def __init__(self, directory: Path, keep: int, writer: bool = True):
+    def __init__(
+        self,
+        directory: Path,
+        keep: int,
+        writer: bool = True,
+        inputs: dict[str, str] | None = None,
+    ):
         """``writer=False``: restore only (the other processes of a run over several hosts,
-        which read the directory process 0 writes; each manager is its process's own)."""
+        which read the directory process 0 writes; each manager is its process's own).
+        ``inputs``: checksums (name to SHA-256) of the files the state depends on, saved with
+        each checkpoint and compared on resume."""
         self.directory = directory.absolute()
+        self.writer, self.inputs = writer, dict(inputs or {})
         if writer:  # orbax creates it only without ``active_processes``
             self.directory.mkdir(parents=True, exist_ok=True)
         self.manager = ocp.CheckpointManager(
@@ -101,11 +140,75 @@ class Checkpoints:
             ),
         )
         self.manager.wait_until_finished()
+        step_dir = self.directory / str(logs_done)
+        manifest = {"files": _file_sums(step_dir), "inputs": self.inputs}
+        tmp = step_dir / (MANIFEST + ".tmp")
+        tmp.write_text(json.dumps(manifest, indent=1) + "\n")
+        os.replace(tmp, step_dir / MANIFEST)
 
-    def restore(self, like_state: Any, like_metrics: dict[str, Any]) -> tuple[int, Any, dict, dict]:
-        """``(logs_done, state, metrics, meta)`` of the newest checkpoint; the ``like_*``
-        arguments give structure, shapes and dtypes (abstract values are fine)."""
-        step = self.latest()
+    def damage(self, step: int) -> str | None:
+        """What is wrong with checkpoint ``step`` (None: intact, or saved before checksums):
+        a file missing, added or differing from its checksum."""
+        step_dir = self.directory / str(step)
+        try:
+            manifest = json.loads((step_dir / MANIFEST).read_text())
+            want = manifest["files"]
+        except FileNotFoundError:
+            return None if not (step_dir / (MANIFEST + ".tmp")).exists() else "no checksums"
+        except (OSError, ValueError, KeyError, TypeError) as e:
+            return f"unreadable checksums ({e})"
+        got = _file_sums(step_dir)
+        for name in sorted(set(want) | set(got)):
+            if want.get(name) != got.get(name):
+                what = "missing" if name not in got else "unexpected" if name not in want else ""
+                return f"{name} {what or 'differs from its checksum'}"
+        return None
+
+    def changed_inputs(self, step: int) -> list[str]:
+        """The inputs (config.json, maze file) whose checksum differs from the one saved with
+        checkpoint ``step``."""
+        try:
+            saved = json.loads((self.directory / str(step) / MANIFEST).read_text())["inputs"]
+        except (OSError, ValueError, KeyError, TypeError):
+            return []
+        return [k for k in sorted(self.inputs) if k in saved and saved[k] != self.inputs[k]]
+
+    def newest_intact(self, warn: Callable[[str], None]) -> int | None:
+        """The newest checkpoint whose files match their checksums (``None``: no checkpoint);
+        damaged newer ones are deleted (by the writer) after ``warn`` has been told, one line.
+        ``ValueError`` when none is intact, or when an input changed since it was saved (the
+        state would not continue the same run)."""
+        steps = sorted(self.manager.all_steps(), reverse=True)
+        damaged = []
+        for step in steps:
+            problem = self.damage(step)
+            if problem is not None:
+                damaged.append(f"checkpoint {step} is damaged ({problem})")
+                continue
+            changed = self.changed_inputs(step)
+            if changed:
+                raise ValueError(
+                    f"{self.directory}: {', '.join(changed)} changed since checkpoint {step} "
+                    "was saved; restore the original to resume this run"
+                )
+            if damaged:
+                warn(f"{'; '.join(damaged)}; resuming from checkpoint {step}")
+                if self.writer:
+                    for bad in steps[: len(damaged)]:
+                        shutil.rmtree(self.directory / str(bad))
+                    self.manager.reload()
+            return step
+        if damaged:
+            raise ValueError(f"{self.directory}: no intact checkpoint: {'; '.join(damaged)}")
+        return None
+
+    def restore(
+        self, like_state: Any, like_metrics: dict[str, Any], step: int | None = None
+    ) -> tuple[int, Any, dict, dict]:
+        """``(logs_done, state, metrics, meta)`` of checkpoint ``step`` (default: the newest);
+        the ``like_*`` arguments give structure, shapes and dtypes (abstract values are
+        fine)."""
+        step = self.latest() if step is None else step
         if step is None:
             raise FileNotFoundError(f"{self.directory}: no checkpoint")
         abstract = jax.tree.map(

@@ -48,6 +48,10 @@ def parse_env_arg(text: str) -> tuple[str, Any]:
         return key, json.loads(value)
     except json.JSONDecodeError:
         return key, value  # a bare string, e.g. obs_mode=paper
+    except RecursionError:  # "[[[[..." tens of thousands deep
+        raise argparse.ArgumentTypeError(
+            f"invalid override {one_line(text[:40])!r}...: nested too deeply"
+        ) from None
 
 
 def add_env_args(p: argparse.ArgumentParser) -> None:

@@ -15,6 +15,7 @@ under ``jaxnav/envs/`` with its entries in ``jaxnav.registration``.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from typing import Any, Generic, TypeVar
 
 import jax
@@ -75,6 +76,11 @@ class Environment(Generic[StateT, ParamsT]):
     # ``reset_env`` is costly and episodes are long (the robot's ray casts), not where most
     # steps end an episode somewhere in a batch (grid). 1.0: reset every env and select.
     batch_reset_fraction: float = 1.0
+    # Actions outside [0, num_actions) are clipped into it on every env (-1 acts as 0,
+    # num_actions + 2 as num_actions - 1): indexing would remap them without a rule (it wraps
+    # negatives). Debug option: ``env.check_actions = True`` raises on one instead (through a
+    # host callback, so also inside ``jit``: the error then arrives as a JAX runtime error).
+    check_actions: bool = False
 
     @property
     def default_params(self) -> ParamsT:
@@ -263,6 +269,13 @@ class Environment(Generic[StateT, ParamsT]):
         obs = jax.vmap(self.get_obs, in_axes=(0, None))(state, params)
         return obs, state, reward, terminated, truncated, info
 
+    def _valid_action(self, action: jax.Array) -> jax.Array:
+        """``action`` clipped into [0, num_actions) (see ``check_actions``)."""
+        action = jnp.asarray(action)
+        if self.check_actions:
+            jax.debug.callback(functools.partial(_check_action, n=self.num_actions), action)
+        return jnp.clip(action, 0, self.num_actions - 1)
+
     def _auto_reset(
         self, key_reset: jax.Array, done: jax.Array, state: StateT, params: ParamsT
     ) -> StateT:
@@ -279,6 +292,7 @@ class Environment(Generic[StateT, ParamsT]):
             key_step, key_reset = jax.random.split(key)
         else:
             key_step = key_reset = key
+        action = self._valid_action(action)
         obs, state, reward, terminated, info = self.step_env(key_step, state, action, params)
         terminated = jnp.asarray(terminated, dtype=bool)
         truncated = jnp.logical_and(
@@ -286,3 +300,10 @@ class Environment(Generic[StateT, ParamsT]):
         )
         reward = jnp.asarray(reward, jnp.float32)
         return key_reset, obs, state, reward, terminated, truncated, dict(info)
+
+
+def _check_action(action: np.ndarray, n: int) -> None:
+    """``ValueError`` naming an action outside [0, n) (``Environment.check_actions``)."""
+    bad = np.asarray(action)[(np.asarray(action) < 0) | (np.asarray(action) >= n)]
+    if bad.size:
+        raise ValueError(f"action {int(bad.ravel()[0])}: outside [0, {n})")

@@ -28,7 +28,7 @@ _REGISTRY: dict[str, tuple[Callable[..., Environment], Callable[[], Any], dict[s
 
 def _entry(env_id: str) -> tuple[Callable[..., Environment], Callable[[], Any], dict[str, Any]]:
     """``env_id``'s registry entry; ``ValueError`` naming the valid ids if there is none."""
-    if env_id not in _REGISTRY:
+    if not isinstance(env_id, str) or env_id not in _REGISTRY:
         raise ValueError(f"unknown env id {env_id!r}; valid ids: {', '.join(registered_envs())}")
     return _REGISTRY[env_id]
 
@@ -48,6 +48,9 @@ def env_config(env_id: str, **overrides: Any) -> Any:
             raise ValueError(
                 f"unknown override {name!r} for {env_id}; valid overrides: {', '.join(valid)}"
             )
+    for name, value in overrides.items():  # e.g. --env-arg obs_heading=False: the string
+        if isinstance(getattr(config, name), bool) and not isinstance(value, bool):
+            raise ValueError(f"{name}={value!r}: must be true or false (JSON, lower case)")
     config = dataclasses.replace(config, **overrides)
     config.validate()
     return config

@@ -31,6 +31,7 @@ from jaxnav.cli import Parser, UsageError, add_env_args, env_from_args, fail
 from jaxnav.environment import Environment, EnvParams
 from jaxnav.evaluate import Policy, play, random_policy
 from jaxnav.programs import enable_compilation_cache
+from jaxnav.safe_io import check_output_file
 from jaxnav.train import Trainer
 
 OUTCOMES = ("success", "collision", "timeout")
@@ -228,8 +229,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise UsageError(f"--episodes {args.episodes}: must be in [1, 16]")
         if args.out.suffix not in (".gif", ".png"):
             raise UsageError(f"--out {args.out}: must end in .gif or .png")
-        if not args.out.parent.is_dir():
-            raise UsageError(f"--out {args.out}: directory {args.out.parent} does not exist")
+        check_output_file(args.out)  # a directory or a device is refused, not replaced
         if args.seed < 0 or not 1 <= args.fps <= 100:
             bad = f"--seed {args.seed}" if args.seed < 0 else f"--fps {args.fps}"
             raise UsageError(f"{bad}: out of range")

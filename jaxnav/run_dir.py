@@ -9,9 +9,12 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import errno
+import fcntl
 import json
 import os
 import platform
+import shutil
 import sys
 import tempfile
 from importlib import metadata
@@ -24,8 +27,9 @@ import numpy as np
 import orbax.checkpoint as ocp
 
 from jaxnav.agents import dqn
-from jaxnav.checkpoints import this_process_only
+from jaxnav.checkpoints import sha256_of, this_process_only
 from jaxnav.config import TrainConfig
+from jaxnav.safe_io import remove_quietly
 from jaxnav.train import Trainer
 
 PACKAGES = ("jaxnav", "jax", "jaxlib", "flax", "optax", "chex", "orbax-checkpoint", "mujoco-mjx")
@@ -49,7 +53,10 @@ def environment_info() -> dict[str, Any]:
 
 
 def partial_dir(out: Path) -> Path:
-    """Where the run for ``out`` lives until it is complete (then renamed to ``out``)."""
+    """Where the run for ``out`` lives until it is complete (then renamed to ``out``);
+    ``ValueError`` for a path without a name ('' or '.')."""
+    if out.name in ("", "."):
+        raise ValueError(f"{str(out)!r}: not a run directory name (give one, not '' or '.')")
     return out.with_name(f".{out.name}.partial")
 
 
@@ -66,11 +73,29 @@ def find_unfinished(run: Path) -> tuple[Path, Path]:
     return run, partial
 
 
+def check_out_path(out: Path, flag: str = "--out") -> None:
+    """``ValueError`` for an ``out`` a run can never be renamed to: an empty name or a
+    symbolic link (dangling, a loop, or to a directory the rename would not follow)."""
+    if out.name in ("", ".", ".."):
+        raise ValueError(f"{flag} {str(out)!r}: not a run directory name (give one)")
+    if out.is_symlink():
+        raise ValueError(
+            f"{flag} {out}: is a symbolic link (to {os.readlink(out)}); give the directory itself"
+        )
+
+
+def check_completable(out: Path, flag: str = "--out") -> None:
+    """``ValueError`` if the finished run cannot be renamed to ``out``: it must be absent or
+    an empty directory."""
+    check_out_path(out, flag)
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise ValueError(f"{flag} {out}: already exists and is not an empty directory")
+
+
 def check_writable(out: Path) -> None:
     """Raise ``ValueError`` if a run cannot be written to ``out`` (checked before any work)."""
-    if out.exists() and (not out.is_dir() or any(out.iterdir())):
-        raise ValueError(f"--out {out}: already exists and is not an empty directory")
-    if partial_dir(out).exists():
+    check_completable(out)
+    if os.path.lexists(partial_dir(out)):
         raise ValueError(
             f"--out {out}: an unfinished run is in {partial_dir(out)}; continue it with "
             f"--resume {out} or delete it"
@@ -85,12 +110,78 @@ def check_writable(out: Path) -> None:
         raise ValueError(f"--out {out}: {parent} is not a writable directory") from None
 
 
+LOCK = "lock"  # in the partial directory, removed before the rename to ``out``
+
+
+class RunLock:
+    """An exclusive ``fcntl.flock`` on ``partial/lock`` while this process writes the run:
+    the OS releases it when the process ends, however it ends, so a lock never goes stale."""
+
+    def __init__(self, partial: Path, fd: int):
+        self.partial, self.fd = partial, fd
+
+    def release(self) -> None:
+        """Drop the lock (it also goes when the process ends)."""
+        if self.fd >= 0:
+            os.close(self.fd)
+            self.fd = -1
+
+
+def lock_run(partial: Path, new: bool) -> RunLock:
+    """Lock the run directory ``partial`` for writing (``new``: create it first);
+    ``ValueError`` (one line) when another process writes it or is creating it."""
+    if new:
+        try:
+            partial.mkdir(parents=True)
+        except FileExistsError:
+            raise ValueError(f"{partial}: another process started a run there just now") from None
+    path = partial / LOCK
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
+        os.close(fd)
+        raise ValueError(
+            f"{partial}: another process (pid {holder}) is writing this run; wait for it or stop it"
+        ) from None
+    os.ftruncate(fd, 0)
+    os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+    return RunLock(partial, fd)
+
+
+def is_finished(partial: Path) -> bool:
+    """Whether the unfinished run in ``partial`` was completed but not yet renamed (its
+    summary.json, written last, is there): ``--resume`` only renames it."""
+    return (partial / "summary.json").is_file()
+
+
 def complete(partial: Path, out: Path) -> None:
     """Rename the finished directory ``partial`` to ``out`` (an empty directory at ``out``,
-    checked before any work, is replaced): a crash never leaves half a run at ``out``."""
-    if out.exists():
-        out.rmdir()
-    partial.rename(out)
+    checked before any work, is replaced): a crash never leaves half a run at ``out``.
+    Repeatable: an interrupted or refused completion is finished by calling it again (through
+    ``--resume``); ``ValueError`` when ``out`` became something the run cannot replace."""
+    try:
+        check_completable(out)
+    except ValueError as e:
+        raise ValueError(
+            f"{e}; cannot rename the finished run to it: it is complete in {partial}; clear "
+            f"{out}, then --resume {out}"
+        ) from None
+    # the final state is params/; dropped before the rename so a finished run never has them
+    shutil.rmtree(partial / "checkpoints", ignore_errors=True)
+    (partial / LOCK).unlink(missing_ok=True)
+    try:
+        if out.exists():
+            out.rmdir()
+        partial.rename(out)
+    except OSError as e:  # something appeared at ``out`` since the check just now
+        if e.errno in (errno.ENOSPC, errno.EDQUOT):
+            raise
+        raise ValueError(
+            f"--out {out}: cannot rename the finished run to it ({e.strerror}); it is complete "
+            f"in {partial}: clear {out}, then --resume {out}"
+        ) from None
 
 
 def config_to_json(config: TrainConfig) -> dict[str, Any]:
@@ -108,8 +199,12 @@ def config_from_json(d: dict[str, Any]) -> TrainConfig:
 def write_json(path: Path, obj: Any) -> None:
     """Write atomically: a crash leaves the old file or the new one, never half of one."""
     tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=2) + "\n")
-    os.replace(tmp, path)
+    try:
+        tmp.write_text(json.dumps(obj, indent=2) + "\n")
+        os.replace(tmp, path)
+    except BaseException:  # a full disk, a directory at ``path``: no stray .tmp
+        remove_quietly(tmp)
+        raise
 
 
 def write_metrics_csv(path: Path, metrics: dict[str, np.ndarray], seeds: list[int]) -> None:
@@ -177,6 +272,16 @@ def load_checkpointing(run: Path) -> dict[str, int]:
     return json.loads((run / "config.json").read_text()).get("checkpointing", {})
 
 
+def input_checksums(run: Path, config: TrainConfig) -> dict[str, str]:
+    """SHA-256 of the files a run's training state depends on: its config.json and its maze
+    file (if any); saved with every checkpoint and compared on ``--resume``."""
+    sums = {"config.json": sha256_of(run / "config.json")}
+    maze_file = config.env_kwargs.get("maze_file")
+    if maze_file is not None:
+        sums[f"maze file {maze_file}"] = sha256_of(Path(maze_file))
+    return sums
+
+
 def config_document(config: TrainConfig, trainer: Trainer) -> dict[str, Any]:
     """The contents of a run's config.json: effective config, network, software and machine."""
     return {
@@ -195,15 +300,17 @@ def config_document(config: TrainConfig, trainer: Trainer) -> dict[str, Any]:
 def create(run: Path, trainer: Trainer, **sections: Any) -> None:
     """Make the run directory ``run`` with its config.json: ``config_document`` of the
     trainer's config, then ``sections`` (e.g. ``checkpointing``)."""
-    run.mkdir(parents=True)
+    run.mkdir(parents=True, exist_ok=True)  # ``lock_run`` may have made it
     write_json(run / "config.json", {**config_document(trainer.config, trainer), **sections})
 
 
 def write_trained(
     run: Path, config: TrainConfig, metrics: dict[str, np.ndarray], params: Any
 ) -> None:
-    """A trained run's metrics.csv (one row per seed and logging interval) and params/."""
+    """A trained run's metrics.csv (one row per seed and logging interval) and params/
+    (replacing those of an earlier, interrupted write: finishing is repeatable)."""
     write_metrics_csv(run / "metrics.csv", metrics, seeds_of(config))
+    shutil.rmtree(run / "params", ignore_errors=True)  # orbax refuses to overwrite
     save_params(run, params)
 
 

@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import errno
 import os
-import shutil
 import signal
 import sys
 import threading
@@ -153,12 +153,17 @@ def train_seeds(
     checkpoints = (  # every process restores; process 0 alone saves
         None
         if saving is None
-        else Checkpoints(saving.directory / "checkpoints", saving.keep, writer=is_primary())
+        else Checkpoints(
+            saving.directory / "checkpoints",
+            saving.keep,
+            writer=is_primary(),
+            inputs=run_dir.input_checksums(saving.directory, c),
+        )
     )
-    done = 0 if checkpoints is None else checkpoints.latest() or 0
+    done = 0 if checkpoints is None else checkpoints.newest_intact(_warn) or 0
     if done:
         try:
-            done, state, metrics, meta = checkpoints.restore(state_like, metrics)
+            done, state, metrics, meta = checkpoints.restore(state_like, metrics, done)
             state = sharding.place(state, trainer.mesh, sharding.state_specs(state_like))
         except Exception as e:  # orbax raises many kinds for a damaged or foreign checkpoint
             msg = f"{checkpoints.directory}: cannot restore checkpoint {done}: {e}"
@@ -196,6 +201,10 @@ def train_seeds(
     if checkpoints is not None:
         checkpoints.close()
     return state, metrics, compile_s, train_s
+
+
+def _warn(message: str) -> None:
+    print_primary(f"warning: {message}", file=sys.stderr, flush=True)
 
 
 def _signal_on_any_host(received: list[int]) -> int:
@@ -263,9 +272,8 @@ def finish_run(
         "eval_s": eval_s,
         "wall_s": time.perf_counter() - t_start,
     }
-    run_dir.write_json(partial / "summary.json", summary)
-    run_dir.complete(partial, out)
-    shutil.rmtree(out / "checkpoints")  # the run is complete: its final state is params/
+    run_dir.write_json(partial / "summary.json", summary)  # last: marks the run finished
+    run_dir.complete(partial, out)  # repeatable through --resume if stopped or refused
     print_eval_table(
         config.env, {"trained (greedy)": summary["trained"], "random": summary["random_policy"]}
     )
@@ -273,6 +281,37 @@ def finish_run(
         f"compile {compile_s:.1f}s, train {train_s:.1f}s, eval {eval_s:.1f}s, "
         f"total {summary['wall_s']:.1f}s; run saved to {out}"
     )
+
+
+EXIT_DISK_FULL = 4
+
+
+def disk_full(prog: str, error: Exception, resume: str) -> int:
+    """Report an ``OSError`` during training or finishing: no space left on the device
+    is one line with the resume command, exit code 4 (the last good checkpoint stays, since
+    orbax renames a checkpoint only once it is complete); any other is raised again."""
+    if not is_disk_full(error):
+        raise error
+    where = getattr(error, "filename", None) or "the run directory"
+    print(
+        f"{prog}: no space left on device while writing {where}; the last good checkpoint "
+        f"is kept; free space, then continue with: {resume}",
+        file=sys.stderr,
+    )
+    return EXIT_DISK_FULL
+
+
+def is_disk_full(error: BaseException | None) -> bool:
+    """ENOSPC or EDQUOT here or in the exceptions it wraps (orbax and tensorstore re-raise
+    their writers' errors, some only as text)."""
+    seen = 0
+    while error is not None and seen < 20:
+        if isinstance(error, OSError) and error.errno in (errno.ENOSPC, errno.EDQUOT):
+            return True
+        if "No space left on device" in str(error) or "Disk quota exceeded" in str(error):
+            return True
+        error, seen = error.__cause__ or error.__context__, seen + 1
+    return False
 
 
 @contextlib.contextmanager

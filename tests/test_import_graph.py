@@ -15,7 +15,8 @@ PACKAGE = Path(__file__).resolve().parents[1] / "jaxnav"
 # A module belongs to the group with the longest name that is its name or a parent package
 # of it (the root ``jaxnav`` holds only ``jaxnav/__init__.py``).
 LAYERS: list[list[str]] = [
-    ["jaxnav.spaces", "jaxnav.sharding", "jaxnav.deploy"],  # deploy: numpy only, no JAX
+    # deploy: numpy only, no JAX
+    ["jaxnav.spaces", "jaxnav.sharding", "jaxnav.safe_io", "jaxnav.deploy"],
     ["jaxnav.pretrained"],
     ["jaxnav.environment", "jaxnav.checkpoints"],
     ["jaxnav.envs", "jaxnav.agents", "jaxnav.wrappers"],

@@ -20,6 +20,7 @@ from jaxnav.evaluate import (
     seed_statistics,
 )
 from jaxnav.programs import enable_compilation_cache
+from jaxnav.safe_io import check_output_file
 
 
 def parser() -> argparse.ArgumentParser:
@@ -59,8 +60,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.run is not None:
             config = run_dir.load_config(args.run)
         out = args.out or (None if args.run is None else args.run / "eval.json")
-        if out is not None and not out.parent.is_dir():
-            raise ValueError(f"--out {out}: directory {out.parent} does not exist")
+        if out is not None:
+            check_output_file(out)  # a directory or a device is refused, not replaced
         if args.pretrained is not None:
             from jaxnav.export import load_pretrained
 

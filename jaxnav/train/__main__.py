@@ -2,7 +2,8 @@
 
 Bad input of any kind is one line on stderr naming the value, exit code 2, nothing written.
 Exit codes: 0 done, 2 bad input, 3 diverged (NaN/Inf; the last good checkpoint is kept),
-128 + signal number when stopped by SIGINT (130) or SIGTERM (143) after saving a checkpoint.
+4 no space left on device (the last good checkpoint is kept), 128 + signal number when
+stopped by SIGINT (130) or SIGTERM (143) after saving a checkpoint.
 An unfinished run lives in the hidden sibling ``.NAME.partial`` of its ``--out`` and continues
 with ``--resume OUT``; it is renamed to ``OUT`` when complete.
 """
@@ -11,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import shlex
 import signal
 import sys
 import time
@@ -29,6 +31,7 @@ from jaxnav.registration import registered_envs
 from jaxnav.train import Trainer
 
 EXIT_DIVERGED = 3
+EXIT_DISK_FULL = runner.EXIT_DISK_FULL
 CHECKPOINT_FLAGS = ("checkpoint_every", "keep_checkpoints")  # kept by --resume unless given
 
 HELP = {
@@ -190,8 +193,8 @@ def start_hosts(args: argparse.Namespace) -> None:
     if args.resume is None and args.out is None:
         raise UsageError("--out is needed with several processes: all of them write one run")
     host, _, port = args.coordinator.rpartition(":")
-    if not host or not port.isdigit():
-        raise UsageError(f"--coordinator {args.coordinator!r}: use HOST:PORT")
+    if not host or not port.isdigit() or not 1 <= int(port) <= 65535:
+        raise UsageError(f"--coordinator {args.coordinator!r}: use HOST:PORT, PORT in [1, 65535]")
     runner.start_hosts(args.coordinator, args.num_processes, args.process_id)
 
 
@@ -242,6 +245,16 @@ def _prepare_training(
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Train as the flags in ``argv`` (default: the command line's) say; the exit code."""
+    locks: list[run_dir.RunLock] = []
+    try:
+        return _main(argv, locks)
+    finally:  # the OS drops it when the process ends; a caller in-process may go on
+        for lock in locks:
+            lock.release()
+
+
+def _main(argv: Sequence[str] | None, locks: list[run_dir.RunLock]) -> int:
+    """``main``, holding the run's lock (put in ``locks``) from before anything is written."""
     prog = "jaxnav.train"
     t_start = time.perf_counter()
     argv = sys.argv[1:] if argv is None else list(argv)
@@ -249,6 +262,18 @@ def main(argv: Sequence[str] | None = None) -> int:
         args, config, out, partial, trainer = prepare_training(argv)
     except (UsageError, ValueError) as e:
         return fail(prog, str(e))
+    resume = f"python -m jaxnav.train --resume {shlex.quote(str(out))}"
+    try:  # held until the process ends: the OS drops an flock with its owner
+        if runner.is_primary():
+            locks.append(run_dir.lock_run(partial, new=args.resume is None))
+        if locks and args.resume is not None and run_dir.is_finished(partial):
+            run_dir.complete(partial, out)  # trained and written; only the rename was left
+            print(f"run saved to {out}")
+            return 0
+    except ValueError as e:
+        return fail(prog, str(e))
+    except OSError as e:
+        return runner.disk_full(prog, e, resume)
     progress = runner.Progress(config, args.quiet or not runner.is_primary())
 
     enable_compilation_cache()
@@ -257,7 +282,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     saving = runner.Saving(partial, every, args.keep_checkpoints)
     checkpointing = {k: getattr(args, k) for k in CHECKPOINT_FLAGS}
     runner.open_run(trainer, partial, checkpointing if args.resume is None else None)
-    resume = f"python -m jaxnav.train --resume {out}"
     runner.print_primary(
         f"training {config.env} for {config.total_timesteps:,} steps x {config.num_seeds} "
         f"seed(s), {config.num_envs} envs each on {config.devices} device(s) -> {out}\n"
@@ -282,13 +306,22 @@ def main(argv: Sequence[str] | None = None) -> int:
         except runner.Diverged as e:
             print(f"{prog}: diverged: {e}", file=sys.stderr)
             return EXIT_DIVERGED
-        except ValueError as e:  # a checkpoint that does not restore
-            return fail(prog, str(e))
+        except Exception as e:  # noqa: BLE001 (orbax wraps a full disk in several kinds)
+            if runner.is_disk_full(e):
+                return runner.disk_full(prog, e, resume)
+            if isinstance(e, ValueError):  # a checkpoint that does not restore
+                return fail(prog, str(e))
+            raise
         # a signal from here on is let be: the trained run is complete in seconds
         params = sharding.to_host(state.params)
         if runner.is_primary():
             times = (compile_s, train_s, t_start)
-            runner.finish_run(trainer, params, metrics, progress, partial, out, times)
+            try:
+                runner.finish_run(trainer, params, metrics, progress, partial, out, times)
+            except ValueError as e:  # --out became something the run cannot be renamed to
+                return fail(prog, str(e))
+            except OSError as e:
+                return runner.disk_full(prog, e, resume)
     return 0
 
 
@@ -296,6 +329,7 @@ def resumable_run(args: argparse.Namespace, argv: list[str]) -> tuple[Path, Path
     """``(out, partial, config)`` of the unfinished run ``--resume`` names; ``ValueError``
     if there is none or a training flag given now differs from the run's config."""
     out, partial = run_dir.find_unfinished(args.resume)
+    run_dir.check_completable(out, "--resume")  # else it would train, then fail to rename
     if args.out is not None:
         raise ValueError(f"--out {args.out}: --resume continues the run in place; leave --out out")
     saved = run_dir.load_config(partial)

@@ -359,6 +359,9 @@ def load_maze(path: str | os.PathLike[str], num_slots: int | None = None) -> Maz
         info = os.stat(name)
     except OSError:
         info = None  # reading it says why
+    if info is not None and (stat.S_ISFIFO(info.st_mode) or stat.S_ISSOCK(info.st_mode)):
+        # reading a FIFO blocks until a writer comes: forever, for a run started by mistake
+        raise MazeFileError(name, "a FIFO or socket, not a maze file")
     if info is not None and stat.S_ISREG(info.st_mode):
         maze = _load_file(name, info.st_dev, info.st_ino, info.st_mtime_ns, info.st_size)
     else:

@@ -1,0 +1,485 @@
+"""Fault injection: a run's directory, checkpoints and outputs under the faults a hostile user
+or a failing machine brings (symlinks at ``--out``, files appearing, kills at every step of
+finishing, damaged checkpoints, a second writer, a full disk). Each case ends in one line
+naming the value and its exit code, nothing replaced, and a run that ``--resume`` completes.
+Tiny configs: 4 logging intervals of 32 env steps."""
+
+from __future__ import annotations
+
+import errno
+import json
+import os
+import random
+import stat
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import TINY_FLAGS  # pytest puts tests/ on sys.path
+
+from jaxnav import checkpoints, run_dir, runner
+from jaxnav.train.__main__ import main as train_main
+
+TINY = [*TINY_FLAGS, "--total-timesteps", "128", "--eval-episodes", "2", "--checkpoint-every", "32"]
+
+
+class Killed(BaseException):
+    """Stands for SIGKILL at a chosen moment: nothing after it runs, no handler sees it."""
+
+
+def one_line_error(capsys, code: int, got: int) -> str:
+    assert got == code
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "Traceback" not in err, err
+    return err
+
+
+def tree(path: Path) -> list[Path]:
+    return sorted(path.rglob("*"))
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory) -> str:
+    """metrics.csv of the tiny run, uninterrupted."""
+    out = tmp_path_factory.mktemp("ref") / "run"
+    assert train_main([*TINY, "--out", str(out)]) == 0
+    return (out / "metrics.csv").read_text()
+
+
+def assert_complete(out: Path, reference: str) -> None:
+    assert (out / "summary.json").is_file() and (out / "params").is_dir()
+    assert not (out / "checkpoints").exists() and not (out / run_dir.LOCK).exists()
+    assert not run_dir.partial_dir(out).exists()
+    assert (out / "metrics.csv").read_text() == reference
+
+
+# ------------------------------------------------------------------ runs that must finish
+@pytest.mark.parametrize("kind", ["dangling", "loop", "to_empty_dir", "empty_name", "dot"])
+def test_out_that_a_run_can_never_be_renamed_to_is_refused_first(kind, tmp_path, capsys):
+    out = tmp_path / "run"
+    if kind == "dangling":
+        out.symlink_to(tmp_path / "nowhere")
+    elif kind == "loop":
+        out.symlink_to(out)
+    elif kind == "to_empty_dir":
+        (tmp_path / "real").mkdir()
+        out.symlink_to(tmp_path / "real")
+    else:
+        out = Path("" if kind == "empty_name" else ".")
+    before = tree(tmp_path)
+    err = one_line_error(capsys, 2, train_main([*TINY, "--out", str(out)]))
+    assert err.startswith("jaxnav.train: error: ") and (
+        "symbolic link" in err or "not a run directory name" in err
+    )
+    assert tree(tmp_path) == before
+
+
+def test_file_appearing_in_out_during_training_then_resume_completes(
+    tmp_path, capsys, monkeypatch, reference
+):
+    out = tmp_path / "run"
+    out.mkdir()  # an empty --out is allowed
+    write_trained = run_dir.write_trained
+
+    def and_a_file_appears(*args, **kwargs):
+        (out / "intruder.txt").write_text("hello")
+        return write_trained(*args, **kwargs)
+
+    monkeypatch.setattr(run_dir, "write_trained", and_a_file_appears)
+    err = one_line_error(capsys, 2, train_main([*TINY, "--out", str(out)]))
+    assert "cannot rename the finished run" in err and f"--resume {out}" in err
+    assert (out / "intruder.txt").read_text() == "hello"  # not replaced
+    monkeypatch.setattr(run_dir, "write_trained", write_trained)
+    # resume refuses at once while the file is there, then completes without training
+    err = one_line_error(capsys, 2, train_main(["--resume", str(out)]))
+    assert "not an empty directory" in err
+    (out / "intruder.txt").unlink()
+    assert train_main(["--resume", str(out)]) == 0
+    assert "run saved to" in capsys.readouterr().out
+    assert_complete(out, reference)
+
+
+@pytest.mark.parametrize(
+    "moment", ["summary", "rmtree_checkpoints", "rename", "write_trained_twice"]
+)
+def test_kill_at_each_step_of_finishing_then_resume_completes(
+    moment, tmp_path, capsys, monkeypatch, reference
+):
+    """Finishing is repeatable: a kill before summary.json retrains nothing (the final
+    checkpoint) and rewrites params/; a kill after it only renames."""
+    out = tmp_path / "run"
+    target = {
+        "summary": (run_dir, "write_json"),
+        "rmtree_checkpoints": (run_dir.shutil, "rmtree"),
+        "rename": (Path, "rename"),
+        "write_trained_twice": (run_dir, "write_metrics_csv"),
+    }[moment]
+    original = getattr(*target)
+    calls = []
+
+    def killed(*args, **kwargs):
+        calls.append(args)
+        name = str(args[0]) if args else ""
+        if moment == "summary" and not name.endswith("summary.json"):
+            return original(*args, **kwargs)
+        if moment == "rmtree_checkpoints" and not name.endswith("checkpoints"):
+            return original(*args, **kwargs)
+        if moment == "write_trained_twice" and not (
+            name.endswith("timing.csv") and (Path(name).parent / "params").exists()
+        ):
+            return original(*args, **kwargs)
+        if moment == "rmtree_checkpoints":
+            original(*args, **kwargs)  # killed just after the checkpoints went
+        raise Killed
+
+    monkeypatch.setattr(*target, killed)
+    with pytest.raises(Killed):
+        train_main([*TINY, "--out", str(out)])
+    monkeypatch.setattr(*target, original)
+    assert run_dir.partial_dir(out).is_dir()
+    assert train_main(["--resume", str(out)]) == 0
+    capsys.readouterr()
+    assert_complete(out, reference)
+    assert train_main(["--resume", str(out)]) == 2  # complete: nothing to resume
+    assert "is complete" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------ one writer at a time
+def test_second_writer_is_refused_and_a_dead_writers_lock_is_recovered(tmp_path, capsys, reference):
+    out = tmp_path / "run"
+    partial = run_dir.partial_dir(out)
+    holder = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "import sys, time; from pathlib import Path; from jaxnav import run_dir; "
+            f"run_dir.lock_run(Path({str(partial)!r}), new=True); print('locked', flush=True); "
+            "time.sleep(600)",
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)},
+    )
+    try:
+        assert holder.stdout.readline().strip() == "locked"
+        # a new run at the same --out while another starts one there
+        err = one_line_error(capsys, 2, train_main([*TINY, "--out", str(out)]))
+        assert "unfinished run is in" in err
+        # the holder writes config.json as a real run would, then another --resume is refused
+        config_doc = out.parent / "doc"
+        assert train_main([*TINY, "--out", str(config_doc), "--total-timesteps", "32"]) == 0
+        capsys.readouterr()
+        (partial / "config.json").write_bytes((config_doc / "config.json").read_bytes())
+        err = one_line_error(capsys, 2, train_main(["--resume", str(out)]))
+        assert f"another process (pid {holder.pid}) is writing this run" in err
+    finally:
+        holder.kill()  # SIGKILL: the OS drops its flock
+        holder.wait()
+    # the lock of the dead process is no obstacle: the run (of 32 steps) resumes and completes
+    assert train_main(["--resume", str(out)]) == 0
+    assert (out / "summary.json").is_file() and not partial.exists()
+
+
+def test_lock_is_held_while_training_and_released_when_done(tmp_path, monkeypatch, capsys):
+    out = tmp_path / "run"
+    seen = []
+    train_seeds = runner.train_seeds
+
+    def try_second_writer(*args, **kwargs):
+        with pytest.raises(ValueError, match="another process .* is writing this run"):
+            run_dir.lock_run(run_dir.partial_dir(out), new=False)
+        seen.append(True)
+        return train_seeds(*args, **kwargs)
+
+    monkeypatch.setattr(runner, "train_seeds", try_second_writer)
+    assert train_main([*TINY, "--out", str(out), "--total-timesteps", "32"]) == 0
+    assert seen and not (out / run_dir.LOCK).exists()
+
+
+# ------------------------------------------------------------------ disk full
+def test_disk_full_is_one_line_exit_4_keeps_the_checkpoint_and_resume_completes(
+    tmp_path, capsys, monkeypatch, reference
+):
+    out = tmp_path / "run"
+    save = checkpoints.Checkpoints.save
+
+    def full_at_third(self, logs_done, *args, **kwargs):
+        if logs_done == 3:
+            path = self.directory / str(logs_done)
+            raise OSError(errno.ENOSPC, "No space left on device", str(path))
+        return save(self, logs_done, *args, **kwargs)
+
+    monkeypatch.setattr(checkpoints.Checkpoints, "save", full_at_third)
+    err = one_line_error(capsys, 4, train_main([*TINY, "--out", str(out)]))
+    assert err.startswith("jaxnav.train: no space left on device while writing ")
+    assert err.endswith(f"continue with: python -m jaxnav.train --resume {out}")
+    names = os.listdir(run_dir.partial_dir(out) / "checkpoints")
+    assert "2" in names and "3" not in names
+    monkeypatch.setattr(checkpoints.Checkpoints, "save", save)
+    assert train_main(["--resume", str(out)]) == 0
+    capsys.readouterr()
+    assert_complete(out, reference)
+
+
+def test_disk_full_while_finishing_keeps_the_run_resumable(
+    tmp_path, capsys, monkeypatch, reference
+):
+    out = tmp_path / "run"
+    write_json = run_dir.write_json
+
+    def full(path, obj):
+        if path.name == "summary.json":
+            raise OSError(errno.ENOSPC, "No space left on device", str(path))
+        return write_json(path, obj)
+
+    monkeypatch.setattr(run_dir, "write_json", full)
+    err = one_line_error(capsys, 4, train_main([*TINY, "--out", str(out)]))
+    assert "summary.json" in err
+    monkeypatch.setattr(run_dir, "write_json", write_json)
+    assert train_main(["--resume", str(out)]) == 0
+    capsys.readouterr()
+    assert_complete(out, reference)
+
+
+def test_resume_hint_is_shell_quoted(tmp_path, capsys):
+    out = tmp_path / "a run; rm -rf x"
+    assert train_main([*TINY, "--out", str(out), "--total-timesteps", "32"]) == 0
+    assert f"--resume '{out}'" in capsys.readouterr().out
+
+
+# ------------------------------------------------------------------ checkpoint checksums
+def interrupted_after(out: Path, monkeypatch, last: int) -> None:
+    """Train the tiny run, killed just after saving checkpoint ``last``."""
+    save = checkpoints.Checkpoints.save
+
+    def then_killed(self, logs_done, *args, **kwargs):
+        save(self, logs_done, *args, **kwargs)
+        if logs_done == last:
+            raise Killed
+
+    monkeypatch.setattr(checkpoints.Checkpoints, "save", then_killed)
+    with pytest.raises(Killed):
+        train_main([*TINY, "--out", str(out)])
+    monkeypatch.setattr(checkpoints.Checkpoints, "save", save)
+
+
+def flip_a_byte(step_dir: Path, rng: random.Random) -> Path:
+    files = [p for p in sorted(step_dir.rglob("*")) if p.is_file()]
+    path = rng.choice(files)
+    data = bytearray(path.read_bytes())
+    if data:
+        i = rng.randrange(len(data))
+        data[i] ^= 1 << rng.randrange(8)
+    else:
+        data = bytearray(b"x")
+    path.write_bytes(bytes(data))
+    return path
+
+
+@pytest.mark.parametrize("trial", range(4))
+def test_flipped_byte_in_the_newest_checkpoint_falls_back_to_the_previous_one(
+    trial, tmp_path, capsys, monkeypatch, reference
+):
+    out = tmp_path / "run"
+    interrupted_after(out, monkeypatch, 3)
+    ckpts = run_dir.partial_dir(out) / "checkpoints"
+    flipped = flip_a_byte(ckpts / "3", random.Random(trial))
+    capsys.readouterr()
+    assert train_main(["--resume", str(out)]) == 0
+    warnings = [x for x in capsys.readouterr().err.splitlines() if x.startswith("warning:")]
+    assert len(warnings) == 1, warnings
+    assert "checkpoint 3 is damaged" in warnings[0] and "resuming from checkpoint 2" in warnings[0]
+    assert flipped.name in warnings[0] or "checksums" in warnings[0]
+    assert_complete(out, reference)  # bitwise the uninterrupted run's metrics
+
+
+def test_no_intact_checkpoint_is_refused_in_one_line(tmp_path, capsys, monkeypatch):
+    out = tmp_path / "run"
+    interrupted_after(out, monkeypatch, 3)
+    ckpts = run_dir.partial_dir(out) / "checkpoints"
+    for step in ("2", "3"):
+        flip_a_byte(ckpts / step, random.Random(int(step)))
+    capsys.readouterr()
+    before = tree(tmp_path)
+    err = one_line_error(capsys, 2, train_main(["--resume", str(out)]))
+    assert "no intact checkpoint: checkpoint 3 is damaged" in err and "checkpoint 2" in err
+    assert tree(tmp_path) == before  # the damaged ones are kept for a look
+
+
+def test_config_or_maze_file_changed_since_the_checkpoint_is_refused(tmp_path, capsys, monkeypatch):
+    out = tmp_path / "run"
+    interrupted_after(out, monkeypatch, 2)
+    config = run_dir.partial_dir(out) / "config.json"
+    doc = json.loads(config.read_text())
+    doc["environment"]["python"] = "edited"
+    config.write_text(json.dumps(doc))
+    capsys.readouterr()
+    err = one_line_error(capsys, 2, train_main(["--resume", str(out)]))
+    assert "config.json changed since checkpoint 2 was saved" in err
+    # the maze file: the same check through the Checkpoints inputs
+    state, metrics = {"x": np.zeros(3, np.float32)}, {"loss": np.zeros((1, 2), np.float32)}
+    saving = checkpoints.Checkpoints(tmp_path / "c", 1, inputs={"maze file m.txt": "aa"})
+    saving.save(1, state, metrics, {"seconds": {}})
+    saving.close()
+    edited = checkpoints.Checkpoints(tmp_path / "c", 1, inputs={"maze file m.txt": "bb"})
+    with pytest.raises(ValueError, match="maze file m.txt changed since checkpoint 1"):
+        edited.newest_intact(print)
+    same = checkpoints.Checkpoints(tmp_path / "c", 1, inputs={"maze file m.txt": "aa"})
+    assert same.newest_intact(print) == 1
+
+
+# ------------------------------------------------------------------ outputs never replace
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("trained") / "run"
+    assert train_main([*TINY, "--out", str(out), "--total-timesteps", "32"]) == 0
+    return out
+
+
+def special_files(tmp_path: Path) -> dict[str, Path]:
+    """A directory, a FIFO, a character device (where the container lets us make one), a
+    dangling symlink and a symlink loop, each named like an output file."""
+    made = {"dir": tmp_path / "dir.json", "fifo": tmp_path / "fifo.json"}
+    made["dir"].mkdir()
+    os.mkfifo(made["fifo"])
+    made["dangling"] = tmp_path / "dangling.json"
+    made["dangling"].symlink_to(tmp_path / "nowhere")
+    made["loop"] = tmp_path / "loop.json"
+    made["loop"].symlink_to(made["loop"])
+    try:
+        os.mknod(tmp_path / "null.json", 0o666 | stat.S_IFCHR, os.makedev(1, 3))
+        made["chardev"] = tmp_path / "null.json"
+    except OSError:
+        pass  # no CAP_MKNOD here; the FIFO covers a non-regular node
+    return made
+
+
+def test_evaluate_and_render_refuse_outputs_that_are_not_regular_files(trained, tmp_path, capsys):
+    from jaxnav.evaluate.__main__ import main as evaluate_main
+    from jaxnav.render import main as render_main
+
+    for kind, path in special_files(tmp_path).items():
+        before = [(p, p.lstat()) for p in tree(tmp_path)]
+        for command, ext in ((evaluate_main, ".json"), (render_main, ".png")):
+            target = path.with_name(path.stem + ext) if ext != ".json" else path
+            if ext != ".json" and not os.path.lexists(target):
+                os.rename(path, target)  # the same kind of node, named .png
+                before = [(p, p.lstat()) for p in tree(tmp_path)]
+            err = one_line_error(
+                capsys, 2, command([str(trained), "--out", str(target), "--episodes", "1"])
+            )
+            assert f"--out {target}" in err, (kind, err)
+            assert [(p, p.lstat()) for p in tree(tmp_path)] == before, kind  # nothing replaced
+    assert not list(trained.glob("*.tmp")) and not list(tmp_path.glob(".*partial*"))
+
+
+# ------------------------------------------------------------------ hostile inputs
+def test_hostile_env_inputs_are_one_line(tmp_path, capsys):
+    import jaxnav
+
+    fifo = tmp_path / "maze.txt"
+    os.mkfifo(fifo)  # reading it would block forever
+    cases = {
+        "FIFO maze file": ["--maze-file", str(fifo)],
+        "obs_heading=False": ["--env", "RobotSimple-v0", "--env-arg", "obs_heading=False"],
+        "deep nesting": ["--env-arg", "size=" + "[" * 50_000],
+    }
+    base = [a for a in TINY if a not in ("--env-arg", "size=5")]  # robot envs have no size
+    for name, argv in cases.items():
+        err = one_line_error(capsys, 2, train_main([*base, "--out", str(tmp_path / "r"), *argv]))
+        want = {"FIFO maze file": str(fifo), "obs_heading=False": "obs_heading='False'"}
+        assert want.get(name, "nested too deeply") in err, (name, err)
+    assert not (tmp_path / "r").exists() and not (tmp_path / ".r.partial").exists()
+    with pytest.raises(ValueError, match=r"unknown env id \['GridMaze-v0'\]"):
+        jaxnav.make(["GridMaze-v0"])
+
+
+@pytest.mark.parametrize("port", ["99999999", "0", "65536"])
+def test_coordinator_port_out_of_range_is_refused(port, capsys):
+    argv = [*TINY, "--coordinator", f"localhost:{port}", "--num-processes", "2"]
+    err = one_line_error(capsys, 2, train_main([*argv, "--process-id", "0", "--out", "x"]))
+    assert f"--coordinator 'localhost:{port}'" in err and "[1, 65535]" in err
+
+
+# ------------------------------------------------------------------ out-of-range actions
+@pytest.mark.parametrize("env_id", ["GridMaze-v0", "RobotSimple-v0"])
+def test_out_of_range_actions_are_clipped_on_every_env_or_raise_when_checked(env_id):
+    import jax
+    import jax.numpy as jnp
+
+    import jaxnav
+
+    env, params = jaxnav.make(env_id)
+    key = jax.random.key(0)
+    _, state = env.reset(key, params)
+    n = env.num_actions
+
+    def step(action):
+        return env.step_no_reset(key, state, action, params)[1]
+
+    clipped = jax.jit(step)  # one compile for every action (eager robot steps are slow)
+    for bad, same_as in ((-1, 0), (-5, 0), (n, n - 1), (n + 4, n - 1), (2**31 - 1, n - 1)):
+        got, want = clipped(jnp.int32(bad)), clipped(jnp.int32(same_as))
+        assert all(
+            bool(jnp.array_equal(a, b))
+            for a, b in zip(jax.tree.leaves(got), jax.tree.leaves(want), strict=True)
+        ), (env_id, bad)
+    env.check_actions = True
+    checked = jax.jit(lambda a: step(a))  # a new function: jit caches traces per function
+    with pytest.raises(Exception, match=rf"action {n}: outside \[0, {n}\)"):
+        jax.block_until_ready(checked(jnp.int32(n)))
+    jax.block_until_ready(checked(jnp.int32(n - 1)))  # in range: fine
+
+
+# ------------------------------------------------------------------ --env-arg fuzz by type
+def json_values():
+    from hypothesis import strategies as st
+
+    scalars = st.one_of(
+        st.none(),
+        st.booleans(),
+        st.integers(min_value=-(2**70), max_value=2**70),
+        st.floats(allow_nan=True, allow_infinity=True),
+        st.text(max_size=8),
+    )
+    return st.recursive(scalars, lambda x: st.lists(x, max_size=3), max_leaves=6)
+
+
+FUZZ_TRIED = {"cases": 0, "accepted": 0, "refused": 0}
+
+
+def test_env_arg_values_of_every_type_are_accepted_or_one_valueerror():
+    """Every env field given a value of every JSON type: ``env_config`` returns a config or
+    raises ValueError (the one line the commands print), never another exception."""
+    import dataclasses
+
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    from jaxnav import registration
+
+    fields = [
+        (env_id, f.name)
+        for env_id in ("GridMaze-v0", "RobotSimple-v0")
+        for f in dataclasses.fields(registration.env_config(env_id))
+        if f.name not in ("maze_file",)  # a path: the maze file fuzz is test_hostile_input's
+    ]
+
+    @settings(max_examples=300, deadline=None, database=None)
+    @given(field=st.sampled_from(fields), value=json_values())
+    def check(field, value):
+        env_id, name = field
+        FUZZ_TRIED["cases"] += 1
+        try:
+            registration.env_config(env_id, **{name: value})
+            registration.make(env_id, **{name: value})  # accepted: it must build
+        except ValueError as e:
+            assert "\n" not in str(e)
+            FUZZ_TRIED["refused"] += 1
+        else:
+            FUZZ_TRIED["accepted"] += 1
+
+    check()
+    print(FUZZ_TRIED)
