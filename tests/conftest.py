@@ -77,6 +77,21 @@ TINY_FLAGS = [
 ]  # fmt: skip
 
 
+# a 7x7 grid run of 2 seeds that learns it in 4,000 steps, for tests of what the CLI writes
+SMALL_GRID_FLAGS = [
+    "--env-arg", "size=7",
+    "--hidden-sizes", "32,32",
+    "--num-envs", "8",
+    "--total-timesteps", "4000",
+    "--learning-starts", "800",
+    "--buffer-size", "2000",
+    "--batch-size", "32",
+    "--log-interval", "1000",
+    "--eval-episodes", "50",
+    "--num-seeds", "2",
+]  # fmt: skip
+
+
 @pytest.fixture(scope="session")
 def tiny_config() -> TrainConfig:
     return TINY_TRAIN

@@ -8,22 +8,12 @@ import subprocess
 import sys
 
 import pytest
+from conftest import SMALL_GRID_FLAGS  # pytest puts tests/ on sys.path
 
 from jaxnav.evaluate.__main__ import main as evaluate_main
 from jaxnav.train.__main__ import main as train_main
 
-TINY = [
-    "--env-arg", "size=7",
-    "--hidden-sizes", "32,32",
-    "--num-envs", "8",
-    "--total-timesteps", "4000",
-    "--learning-starts", "800",
-    "--buffer-size", "2000",
-    "--batch-size", "32",
-    "--log-interval", "1000",
-    "--eval-episodes", "50",
-    "--num-seeds", "2",
-]  # fmt: skip
+TINY = SMALL_GRID_FLAGS
 
 
 @pytest.fixture(scope="module")

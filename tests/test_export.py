@@ -16,6 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import SMALL_GRID_FLAGS  # pytest puts tests/ on sys.path
 
 from jaxnav import export
 from jaxnav.config import TrainConfig
@@ -211,19 +212,7 @@ def test_deploy_modules_run_without_jax(exported):
 
 
 # ------------------------------------------------------------------ a trained run, the CLI
-TINY = [
-    "--env-arg", "size=7",
-    "--hidden-sizes", "32,32",
-    "--num-envs", "8",
-    "--total-timesteps", "4000",
-    "--learning-starts", "800",
-    "--buffer-size", "2000",
-    "--batch-size", "32",
-    "--log-interval", "1000",
-    "--eval-episodes", "50",
-    "--num-seeds", "2",
-    "--quiet",
-]  # fmt: skip
+TINY = [*SMALL_GRID_FLAGS, "--quiet"]
 
 
 @pytest.fixture(scope="module")
