@@ -51,8 +51,7 @@ class EnvParams:
 
 
 # On a GPU, ``step_batch``'s compaction (index gathers and scatters) costs more than the resets
-# it saves in smaller batches. One H200, RobotSimple-v0 / RobotRandom-v0 kinematic, against
-# vmap(step): 0.88x / 1.02x at 65,536 envs, 0.99x / 1.13x at 131,072, 1.10x / 1.25x at 262,144
+# it saves in batches below this size (measured against vmap(step): benchmarks/RESULTS.md)
 ACCELERATOR_MIN_BATCH = 2**17
 
 StateT = TypeVar("StateT", bound=EnvState)

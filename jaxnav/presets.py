@@ -50,7 +50,7 @@ ROBOT_PQN: dict[str, Any] = {
     "log_interval": 200_000,
 }
 
-# PQN at a GPU's scale for RobotNav-v0, the generalist (one H100: about 80 s for 200M steps).
+# PQN at a GPU's scale for RobotNav-v0, the generalist (README: "The generalist robot").
 # 8192 envs x 32 steps with 64 minibatches x 4 epochs: 256 gradient steps per 262,144
 # transitions; with 16 steps of 16,384 envs and 8 minibatches x 2 epochs the run was 6x faster
 # but made only 6,000 gradient steps in 100M env steps and plateaued near 0.4 success. The wider

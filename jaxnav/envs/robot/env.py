@@ -578,9 +578,8 @@ class RobotNav(Environment[RobotState, RobotParams]):
         gap = frame[: c.num_lasers].min() * c.laser_range - radius  # free space around it
         r_clearance = params.clearance_reward * jnp.clip(1.0 - gap / params.clearance, 0.0, 1.0)
         frame = self._sense(frame, k_sense)  # the lasers as seen (the clearance read the truth)
-        # drop the oldest frame, append the new one, on the flat vector: the same values, but
-        # XLA's GPU kernel for it took 40 instead of 58 us (H200, 262,144 envs; 1.04-1.06x
-        # env steps/s), the same speed on a CPU
+        # drop the oldest frame, append the new one, on the flat vector: the same values in
+        # a faster GPU kernel than a shift of the [frames, per_frame] array (RESULTS.md)
         flat = jnp.concatenate([state.frames.reshape(-1)[frame.shape[0] :], frame])
         frames = flat.reshape(state.frames.shape)
         state = state.replace(pose=pose, frames=frames, time=state.time + 1)
@@ -713,8 +712,8 @@ class RobotNav(Environment[RobotState, RobotParams]):
         self, params: RobotParams, layout: jax.Array
     ) -> tuple[jax.Array, jax.Array]:
         """The layout's wall boxes (centres, half sizes) for a collision test without a mask:
-        inactive slots are moved 1e15 m away, beyond any disc. Unmasked, the test ran 1.02-1.07x
-        faster on an H200 (65,536 to 1,048,576 envs, RobotRandom-v0), the same on a CPU."""
+        inactive slots are moved 1e15 m away, beyond any disc (unmasked, the test is a little
+        faster on a GPU and no slower on a CPU: benchmarks/RESULTS.md)."""
         w = params.bank.walls
         # on the whole bank, so the select is not redone per env (XLA folds it when the bank
         # is a constant of the program, as in the trainer and the benchmarks)
@@ -794,8 +793,8 @@ class RobotNav(Environment[RobotState, RobotParams]):
         w = params.bank.walls
         lo, hi = geometry.box_bounds(w.center, w.half_size, w.active)
         ranges = geometry.lasers(pose, lo[layout], hi[layout], self.angles, self.config.laser_range)
-        # materialized: fused into the frame's concatenation, the casts ran 1-8% slower on an
-        # H200 (65,536 to 1,048,576 envs)
+        # materialized: fused into the frame's concatenation, the casts ran slower on a GPU
+        # (benchmarks/RESULTS.md)
         return jax.lax.optimization_barrier(ranges)
 
     def _frame(self, pose, goal, layout, params) -> jax.Array:

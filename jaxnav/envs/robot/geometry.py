@@ -107,8 +107,8 @@ def ray_box_distances(
     t_near = jnp.minimum(t1, t2)
     t_far = jnp.maximum(t1, t2)
     # x and y by hand, not jnp.max(axis=-1): reductions over 2 made XLA cut the step into
-    # kernels passing [R, W, 2] arrays through memory. With circle_box_penetration's same
-    # change: RobotRandom-v0 kinematic env steps/s 1.4x on an H100, 2.0x on a 2-core CPU
+    # kernels passing [R, W, 2] arrays through memory (with circle_box_penetration's same
+    # change, faster on CPU and GPU: benchmarks/RESULTS.md, History)
     enter = jnp.maximum(t_near[..., 0], t_near[..., 1])  # [R, W]
     leave = jnp.minimum(t_far[..., 0], t_far[..., 1])
     dist = jnp.where((enter <= leave) & (leave >= 0.0), jnp.maximum(enter, 0.0), _FAR)
