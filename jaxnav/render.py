@@ -1,6 +1,6 @@
 """Trajectories as pictures: record episodes inside jit, draw them outside on numpy.
 
-    python -m jaxnav.render RUN_DIR --episodes 4 --out traj.gif   # animated
+    python -m jaxnav.render RUN_DIR --episodes 4                  # animated, RUN_DIR/traj.gif
     python -m jaxnav.render RUN_DIR --episodes 4 --out traj.png   # paths and laser fans
 
 ``record`` plays episodes with ``evaluate.play(record=True)`` (one compiled scan that returns
@@ -27,7 +27,7 @@ import numpy as np
 
 from jaxnav import run_dir
 from jaxnav.agents import dqn
-from jaxnav.cli import Parser, UsageError, add_env_args, fail
+from jaxnav.cli import HelpFormatter, Parser, UsageError, add_env_args, env_from_args, fail
 from jaxnav.environment import Environment, EnvParams
 from jaxnav.evaluate import Policy, play, random_policy
 from jaxnav.programs import enable_compilation_cache
@@ -200,17 +200,19 @@ def parser() -> argparse.ArgumentParser:
     p = Parser(
         prog="python -m jaxnav.render",
         description="Draw episodes of a trained run: an animated GIF or a PNG of the paths.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     p.add_argument("run", type=Path, help="run directory written by jaxnav.train")
     p.add_argument("--episodes", type=int, default=4, help="episodes drawn side by side (1-16)")
-    p.add_argument("--out", type=Path, default=Path("traj.gif"), help=".gif or .png")
+    p.add_argument(
+        "--out", type=Path, help=".gif or .png (default: RUN/traj.gif, in the run directory)"
+    )
     p.add_argument("--seed", type=int, default=0, help="seed of the episodes' starts and goals")
     p.add_argument("--run-seed", type=int, help="which trained seed (default: the run's first)")
     p.add_argument("--policy", choices=("trained", "random"), default="trained")
     p.add_argument("--env", help="draw on another env id; default: the run's")
     add_env_args(p)
-    p.add_argument("--fps", type=int, default=10)
+    p.add_argument("--fps", type=int, default=10, help="frames per second of a GIF (1-100)")
     return p
 
 
@@ -219,6 +221,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     prog = "jaxnav.render"
     try:
         args = parser().parse_args(argv)
+        if args.out is None:  # a run's pictures belong with the run, not in the cwd
+            args.out = args.run / "traj.gif"
         if not 1 <= args.episodes <= 16:
             raise UsageError(f"--episodes {args.episodes}: must be in [1, 16]")
         if args.out.suffix not in (".gif", ".png"):
@@ -235,10 +239,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise UsageError(f"--run-seed {run_seed}: the run has seeds {seeds}")
         trainer = Trainer(config)
         params = run_dir.load_trained_params(args.run, trainer)
-        if args.env is not None or args.env_arg:
-            kwargs = {**(config.env_kwargs if args.env is None else {}), **dict(args.env_arg)}
+        env_id, overrides = env_from_args(args, args.env)  # --maze-file implies RobotMaze-v0
+        if env_id is not None or overrides:
+            kwargs = {**(config.env_kwargs if env_id is None else {}), **overrides}
             env_trainer = Trainer(
-                dataclasses.replace(config, env=args.env or config.env, env_kwargs=kwargs)
+                dataclasses.replace(config, env=env_id or config.env, env_kwargs=kwargs)
             )
             dqn.check_input_fits(
                 env_trainer.config.env, env_trainer.network_input, trainer.network_input

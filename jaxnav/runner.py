@@ -92,7 +92,7 @@ class Progress:
         mean = lambda k: float(np.mean(metrics[k]))  # noqa: E731
         print(
             f"[{elapsed:6.1f}s] steps {steps:>9,}/{total:,} ({100 * steps / total:3.0f}%) | "
-            f"{sps:>8,.0f} steps/s | success {mean('success_rate'):.3f} | "
+            f"{sps:>8,.0f} steps/s | train success (eps-greedy) {mean('success_rate'):.3f} | "
             f"return {mean('mean_return'):6.2f} | length {mean('mean_length'):5.1f} | "
             f"loss {mean('loss'):.4f} | eps {mean('epsilon'):.2f} | ETA {eta:4.0f}s",
             flush=True,
@@ -287,6 +287,12 @@ def stop_on_signals(received: list[int]) -> Iterator[None]:
 
     def handler(signum: int, frame: Any) -> None:
         if received:  # asked twice: stop now, the last checkpoint stays
+            print(
+                f"\n{signal.Signals(signum).name} again: stopping now without saving; "
+                "--resume continues from the last checkpoint",
+                file=sys.stderr,
+                flush=True,
+            )
             signal.signal(signum, signal.SIG_DFL)
             os.kill(os.getpid(), signum)
         received.append(signum)
