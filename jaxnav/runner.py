@@ -18,7 +18,7 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -26,7 +26,7 @@ import jax
 import numpy as np
 from jax.experimental import multihost_utils
 
-from jaxnav import programs, run_dir, sharding
+from jaxnav import loggers, programs, run_dir, sharding
 from jaxnav.checkpoints import Checkpoints
 from jaxnav.config import TrainConfig
 from jaxnav.evaluate import evaluate_seeds, mean_of, print_eval_table
@@ -67,8 +67,11 @@ def open_run(trainer: Trainer, partial: Path, checkpointing: dict[str, int] | No
 class Progress:
     """Progress lines, one per logging interval, printed between the compiled intervals."""
 
-    def __init__(self, config: TrainConfig, quiet: bool):
+    def __init__(
+        self, config: TrainConfig, quiet: bool, sinks: Sequence[loggers.MetricsLogger] = ()
+    ):
         self.config, self.quiet = config, quiet
+        self.sinks = sinks  # TensorBoard, W&B: each interval's metrics, quiet or not
         self.seconds: dict[int, float] = {}  # wall time of each interval, by its env steps
         self.restart(0)
 
@@ -83,6 +86,8 @@ class Progress:
         steps = int(np.ravel(metrics["env_steps"])[0])
         now = time.perf_counter()
         self.seconds[steps], self.last = now - self.last, now
+        for sink in self.sinks:
+            sink.log(metrics, steps)
         if self.quiet:
             return
         elapsed = now - self.start

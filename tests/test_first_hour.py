@@ -179,3 +179,73 @@ def test_wide_intervals_print_their_seed_count(capsys):
     print_rows("s", {"random": row})
     out = capsys.readouterr().out
     assert "(n=2)" in out and out.count("(n=") == 1
+
+
+def read_events(directory):
+    """``{tag: [(step, value)]}`` of the event files in ``directory``, read as TensorBoard
+    reads them: TFRecord frames (length, its CRC, the Event proto, its CRC)."""
+    import struct
+
+    from tensorboardX.proto import event_pb2
+
+    scalars = {}
+    for path in sorted(Path(directory).glob("events.out.tfevents.*")):
+        data = path.read_bytes()
+        i = 0
+        while i < len(data):
+            (n,) = struct.unpack("<Q", data[i : i + 8])
+            event = event_pb2.Event.FromString(data[i + 12 : i + 12 + n])
+            i += 12 + n + 4
+            for v in event.summary.value:
+                scalars.setdefault(v.tag, []).append((event.step, v.simple_value))
+    return scalars
+
+
+def test_tensorboard_event_files_hold_the_metrics_csv(tmp_path):
+    import csv
+
+    pytest.importorskip("tensorboardX")  # the dev extra has it; make test installs it
+    out = tmp_path / "run"
+    flags = [*TINY_FLAGS, *STEPS, "--num-seeds", "2", "--tensorboard", "--out", str(out)]
+    assert train_main(flags) == 0
+    scalars = read_events(out / "tensorboard")
+    rows = list(csv.DictReader((out / "metrics.csv").open()))
+    seed1 = [(int(r["env_steps"]), float(r["success_rate"])) for r in rows if r["seed"] == "1"]
+    assert [s for s, _ in scalars["seed1/success_rate"]] == [s for s, _ in seed1]
+    assert [v for _, v in scalars["seed1/success_rate"]] == pytest.approx([v for _, v in seed1])
+    assert [s for s, _ in scalars["train/loss"]] == [32, 64]
+
+
+def test_missing_logging_packages_are_one_line_errors(tmp_path, capsys, monkeypatch):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "tensorboardX", None)  # import fails as if not installed
+    monkeypatch.setitem(sys.modules, "wandb", None)
+    for flag, named in (("--tensorboard", "tensorboard]"), ("--wandb", "pip install wandb")):
+        assert train_main([*TINY_FLAGS, *STEPS, flag, "--out", str(tmp_path / "r")]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and f"{flag}: " in err and named in err
+    assert not any(tmp_path.iterdir())
+
+
+def test_wandb_gets_each_interval_when_asked(tmp_path, monkeypatch):
+    import sys
+    import types
+
+    logged, runs = [], []
+
+    class Run:
+        def log(self, data, step):
+            logged.append((step, data))
+
+        def finish(self):
+            runs.append("finished")
+
+    fake = types.SimpleNamespace(init=lambda **kw: runs.append(kw) or Run())
+    monkeypatch.setitem(sys.modules, "wandb", types.ModuleType("wandb"))
+    monkeypatch.setattr(sys.modules["wandb"], "init", fake.init, raising=False)
+    out = tmp_path / "run"
+    assert train_main([*TINY_FLAGS, *STEPS, "--wandb", "--out", str(out)]) == 0
+    assert runs[0]["name"] == "run" and runs[0]["config"]["total_timesteps"] == 64
+    assert runs[-1] == "finished" and [s for s, _ in logged] == [32, 64]
+    assert "train/success_rate" in logged[0][1]

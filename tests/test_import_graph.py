@@ -15,7 +15,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "jaxnav"
 # A module belongs to the group with the longest name that is its name or a parent package
 # of it (the root ``jaxnav`` holds only ``jaxnav/__init__.py``).
 LAYERS: list[list[str]] = [
-    ["jaxnav.spaces", "jaxnav.sharding"],
+    ["jaxnav.spaces", "jaxnav.sharding", "jaxnav.loggers"],
     ["jaxnav.environment", "jaxnav.checkpoints"],
     ["jaxnav.envs", "jaxnav.agents", "jaxnav.wrappers"],
     ["jaxnav.registration"],
