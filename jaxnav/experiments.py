@@ -4,6 +4,7 @@ the random agent on the same fixed test episodes, write a results directory with
     python -m jaxnav.experiments paper-grid  [--quick] [--seeds 5] [--out DIR]
     python -m jaxnav.experiments paper-robot [--quick] [--maze-file FILE]
     python -m jaxnav.experiments plot DIR    # redraw the figures of a results directory
+    python -m jaxnav.experiments plot RUN    # a training run's curves: RUN/training_curves.png
     python -m jaxnav.experiments generalization RUN... [--family 'ENV_ID K=V ...'] [--out DIR]
 
 Agents: ``dueling-double`` (the paper's model) and ``simple`` (plain DQN: dueling and double
@@ -660,8 +661,12 @@ def parser() -> argparse.ArgumentParser:
     gen.add_argument("--episodes", type=int, default=1000, help="episodes per family and seed")
     gen.add_argument("--seed", type=int, default=0, help="seed of the test episodes")
     gen.add_argument("--out", type=Path, help="results directory (default: runs/<name>-<time>)")
-    plot = sub.add_parser("plot", help="redraw the figures of a results directory")
-    plot.add_argument("dir", type=Path)
+    plot = sub.add_parser(
+        "plot",
+        help="redraw the figures of a results directory, or draw a training run's curves "
+        "(RUN/training_curves.png from its metrics.csv)",
+    )
+    plot.add_argument("dir", type=Path, help="a results directory or a run directory")
     return p
 
 
@@ -723,6 +728,17 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _replot(directory: Path) -> int:
     from jaxnav import plots
 
+    if (directory / "metrics.csv").is_file() and not (directory / "results.json").is_file():
+        try:  # one training run
+            config = run_dir.load_config(directory)
+            metrics = plots.read_run_metrics(directory)
+            fig = plots.run_curves(metrics, f"{config.env} ({config.algo})")
+        except (OSError, ValueError, KeyError) as e:
+            return fail("jaxnav.experiments", f"{directory}: unreadable run ({e})")
+        path = directory / "training_curves.png"
+        plots.save(fig, path)
+        print(f"wrote {path}")
+        return 0
     try:
         results = json.loads((directory / "results.json").read_text())
         with np.load(directory / "episodes.npz") as f:

@@ -249,3 +249,28 @@ def test_wandb_gets_each_interval_when_asked(tmp_path, monkeypatch):
     assert runs[0]["name"] == "run" and runs[0]["config"]["total_timesteps"] == 64
     assert runs[-1] == "finished" and [s for s, _ in logged] == [32, 64]
     assert "train/success_rate" in logged[0][1]
+
+
+def test_a_single_run_is_plotted_from_its_metrics(grid_run, capsys):
+    from PIL import Image
+
+    from jaxnav.experiments import main as experiments_main
+
+    assert experiments_main(["plot", str(grid_run)]) == 0
+    with Image.open(grid_run / "training_curves.png") as img:
+        assert img.format == "PNG" and img.size[0] > 1000
+
+
+def test_step_ticks_are_few_and_short():
+    import matplotlib.pyplot as plt
+
+    from jaxnav.plots import steps_axis
+
+    fig, ax = plt.subplots()
+    ax.plot([10_000, 600_000], [0, 1])
+    steps_axis(ax)
+    fig.canvas.draw()
+    lo, hi = ax.get_xlim()
+    labels = [t.get_text() for t in ax.get_xticklabels() if lo <= t.get_position()[0] <= hi]
+    assert 2 <= len(labels) <= 6 and all(len(t) <= 5 for t in labels), labels
+    plt.close(fig)
