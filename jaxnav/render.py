@@ -2,6 +2,7 @@
 
     python -m jaxnav.render RUN_DIR --episodes 4                  # animated, RUN_DIR/traj.gif
     python -m jaxnav.render RUN_DIR --episodes 4 --out traj.png   # paths and laser fans
+    python -m jaxnav.render RUN_DIR --episodes 4 --out traj.pdf   # the same, vector
 
 ``record`` plays episodes with ``evaluate.play(record=True)`` (one compiled scan that returns
 every state, and the env's ``sensor_ranges`` of every state, e.g. the robot's laser ranges) and
@@ -18,6 +19,7 @@ import dataclasses
 import math
 import os
 import sys
+import textwrap
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -34,6 +36,7 @@ from jaxnav.programs import enable_compilation_cache
 from jaxnav.train import Trainer
 
 OUTCOMES = ("success", "collision", "timeout")
+OUT_SUFFIXES = (".gif", ".png", ".svg", ".pdf")  # animated; raster; vector (papers)
 Episode = dict[str, np.ndarray]
 
 
@@ -103,6 +106,7 @@ def draw_episode(
     if laser_steps is None:
         laser_steps = [t] if upto is not None else np.linspace(0, steps, 4).round().astype(int)
     width, height = (float(v) for v in ep["arena"])
+    robot = bool(ep["laser_angles"].size)
     ax.clear()
     ax.set_xlim(0, width)
     ax.set_ylim(0, height)
@@ -110,7 +114,13 @@ def draw_episode(
     ax.set_xticks([])
     ax.set_yticks([])
     ax.add_patch(Rectangle((0, 0), width, height, fill=False, lw=2, color="black"))
-    if not ep["laser_angles"].size:  # grid: show the cells
+    if robot:  # a metre scale: ticks in metres along the bottom and left edges
+        step = metre_step(max(width, height))
+        ax.set_xticks(np.arange(0, width + 1e-6, step))
+        ax.set_yticks(np.arange(0, height + 1e-6, step))
+        ax.tick_params(labelsize=7, length=2, pad=1)
+        ax.set_xlabel("m", fontsize=7, labelpad=1)
+    else:  # grid: show the cells
         ax.set_xticks(np.arange(width + 1), minor=True)
         ax.set_yticks(np.arange(height + 1), minor=True)
         ax.grid(which="minor", color="0.85", lw=0.5)
@@ -130,10 +140,25 @@ def draw_episode(
     ax.plot(*xy[0], marker="o", color="tab:green", ms=8, zorder=4, label="start")
     ax.plot(xy[: t + 1, 0], xy[: t + 1, 1], color="tab:blue", lw=1.5, zorder=3, label="path")
     ax.add_patch(Circle(xy[t], radius, color="tab:blue", alpha=0.8, zorder=5))
-    if ep["laser_angles"].size:  # heading tick
-        tip = xy[t] + 2 * radius * np.array([np.cos(heading[t]), np.sin(heading[t])])
-        ax.plot([xy[t, 0], tip[0]], [xy[t, 1], tip[1]], color="black", lw=1.5, zorder=6)
-    ax.set_title(title if title is not None else describe(ep), fontsize=9)
+    if robot:  # drawn at least 2.5% of the arena wide (a 0.15 m disc is a dot in 10 m), with an
+        # arrow for its heading; the true footprint stays inside it
+        shown = max(radius, 0.025 * max(width, height))
+        ax.add_patch(Circle(xy[t], shown, fill=False, ec="black", lw=1, zorder=6))
+        d = 2.6 * shown * np.array([np.cos(heading[t]), np.sin(heading[t])])
+        ax.annotate(
+            "", xy[t] + d, xy[t], zorder=6, arrowprops={"arrowstyle": "-|>", "lw": 1.5}
+        )
+    text = title if title is not None else describe(ep)
+    ax.set_title(textwrap.fill(text, 34), fontsize=8)  # two short lines, never into a neighbour
+
+
+def metre_step(size: float) -> float:
+    """Tick spacing in metres giving 3 to 6 ticks over ``size`` metres (1, 2 or 5 times a
+    power of ten)."""
+    for step in (0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0):
+        if size / step <= 6:
+            return step
+    return 10.0 ** math.ceil(math.log10(size / 5))
 
 
 def _grid_shape(n: int) -> tuple[int, int]:
@@ -151,10 +176,12 @@ def trajectories_figure(episodes: Sequence[Episode], title: str = "") -> Any:
         draw_episode(ax, ep)
     for ax in axes.ravel()[len(episodes) :]:
         ax.axis("off")
-    axes[0, 0].legend(loc="upper left", fontsize=7, framealpha=0.9)
+    # one legend for all panels, below them: inside a panel it hides part of the maze
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=len(labels), fontsize=8, frameon=False)
     if title:
         fig.suptitle(title)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.05, 1, 1))
     return fig
 
 
@@ -205,7 +232,10 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("run", type=Path, help="run directory written by jaxnav.train")
     p.add_argument("--episodes", type=int, default=4, help="episodes drawn side by side (1-16)")
     p.add_argument(
-        "--out", type=Path, help=".gif or .png (default: RUN/traj.gif, in the run directory)"
+        "--out",
+        type=Path,
+        help=".gif (animated), .png, or .svg/.pdf (vector) (default: RUN/traj.gif, in the run "
+        "directory)",
     )
     p.add_argument("--seed", type=int, default=0, help="seed of the episodes' starts and goals")
     p.add_argument("--run-seed", type=int, help="which trained seed (default: the run's first)")
@@ -225,8 +255,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             args.out = args.run / "traj.gif"
         if not 1 <= args.episodes <= 16:
             raise UsageError(f"--episodes {args.episodes}: must be in [1, 16]")
-        if args.out.suffix not in (".gif", ".png"):
-            raise UsageError(f"--out {args.out}: must end in .gif or .png")
+        if args.out.suffix not in OUT_SUFFIXES:
+            raise UsageError(f"--out {args.out}: must end in {', '.join(OUT_SUFFIXES)}")
         if not args.out.parent.is_dir():
             raise UsageError(f"--out {args.out}: directory {args.out.parent} does not exist")
         if args.seed < 0 or not 1 <= args.fps <= 100:
@@ -270,8 +300,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         matplotlib.use("Agg")
         fig = trajectories_figure(episodes, title)
-        tmp = args.out.with_name(f".{args.out.stem}.partial.png")
-        fig.savefig(tmp, dpi=110)
+        tmp = args.out.with_name(f".{args.out.stem}.partial{args.out.suffix}")
+        fig.savefig(tmp, dpi=110)  # .svg and .pdf: vector, for papers
         os.replace(tmp, args.out)
         print(f"wrote {args.out}")
     for i, ep in enumerate(episodes):

@@ -274,3 +274,34 @@ def test_step_ticks_are_few_and_short():
     labels = [t.get_text() for t in ax.get_xticklabels() if lo <= t.get_position()[0] <= hi]
     assert 2 <= len(labels) <= 6 and all(len(t) <= 5 for t in labels), labels
     plt.close(fig)
+
+
+def test_pictures_for_papers_vector_legend_outside_metre_scale_visible_robot(robot_run, tmp_path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib.patches import Circle
+
+    svg = tmp_path / "t.svg"
+    assert render.main([str(robot_run), "--episodes", "2", "--out", str(svg)]) == 0
+    assert svg.read_text().lstrip().startswith("<?xml") and "<svg" in svg.read_text()
+
+    captured = []
+    original = render.trajectories_figure
+
+    def keep(episodes, title=""):
+        captured.append(original(episodes, title))
+        return captured[-1]
+
+    png = tmp_path / "t.png"
+    with pytest.MonkeyPatch.context() as m:
+        m.setattr(render, "trajectories_figure", keep)
+        assert render.main([str(robot_run), "--episodes", "2", "--out", str(png)]) == 0
+    fig = captured[0]
+    ax = fig.axes[0]
+    assert fig.legends and ax.get_legend() is None  # one legend, outside the mazes
+    assert ax.get_xlabel() == "m" and len(ax.get_xticks()) >= 3  # a metre scale
+    width = max(ax.get_xlim()[1], ax.get_ylim()[1])
+    circles = [p for p in ax.patches if isinstance(p, Circle) and not p.get_fill()]
+    assert circles and circles[0].get_radius() >= 0.02 * width  # the robot, large enough
+    assert any(type(c).__name__ == "Annotation" for c in ax.get_children())  # its heading
