@@ -704,6 +704,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             ]
         for study in studies:  # every value checked before anything is trained or written
             study.config.validate()
+            study.config.check_whole_intervals()  # exactly the steps asked for
             for suite in study.suites:
                 cfg = env_config(suite.env, **suite.env_kwargs)
                 if suite.first_layout and cfg.num_layouts <= suite.first_layout:

@@ -107,9 +107,8 @@ def test_total_timesteps_that_would_be_rounded_up_are_refused(steps, named, tmp_
 )
 def test_presets_train_whole_logging_intervals(env, algo):
     from jaxnav.config import TrainConfig
-    from jaxnav.train.__main__ import check_whole_intervals
 
-    check_whole_intervals(TrainConfig.for_env(env, algo=algo))
+    TrainConfig.for_env(env, algo=algo).check_whole_intervals()
 
 
 @pytest.mark.parametrize(

@@ -219,24 +219,6 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
     return TrainConfig.for_env(env or "GridMaze-v0", **values)
 
 
-def check_whole_intervals(config: TrainConfig) -> None:
-    """``ValueError`` unless ``total_timesteps`` is a whole number of logging intervals: the
-    run is one scan over intervals of ``iterations_per_log`` iterations of ``num_envs *
-    rollout_length`` env steps, so any other count would be rounded up, training more steps
-    than asked for."""
-    total, per_log = config.total_timesteps, config.steps_per_log
-    if total % per_log == 0:
-        return
-    below, above = total // per_log * per_log, (total // per_log + 1) * per_log
-    e_g = f"{below} or {above}" if below else f"{above}"
-    raise ValueError(
-        f"--total-timesteps {total}: a run trains whole logging intervals of {per_log} env "
-        f"steps here ({config.iterations_per_log} iterations of {config.steps_per_iteration} "
-        f"env steps; --log-interval {config.log_interval}); use a multiple of {per_log}, e.g. "
-        f"{e_g}, or change --log-interval or --num-envs"
-    )
-
-
 def prepare_training(
     argv: list[str],
 ) -> tuple[argparse.Namespace, TrainConfig, Path, Path, Trainer]:
@@ -262,7 +244,7 @@ def _prepare_training(
     else:
         config = config_from_args(args)
         config.validate()
-        check_whole_intervals(config)
+        config.check_whole_intervals()
         out = args.out or Path("runs") / f"{config.env}-{time.strftime('%Y%m%d-%H%M%S')}"
         partial = run_dir.partial_dir(out)
         if runner.is_primary():
