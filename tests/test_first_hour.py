@@ -304,3 +304,24 @@ def test_pictures_for_papers_vector_legend_outside_metre_scale_visible_robot(rob
     circles = [p for p in ax.patches if isinstance(p, Circle) and not p.get_fill()]
     assert circles and circles[0].get_radius() >= 0.02 * width  # the robot, large enough
     assert any(type(c).__name__ == "Annotation" for c in ax.get_children())  # its heading
+
+
+def test_a_second_ctrl_c_says_it_stops_without_saving():
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    script = (
+        "import os, signal, time\n"
+        "from jaxnav import runner\n"
+        "with runner.stop_on_signals([]):\n"
+        "    os.kill(os.getpid(), signal.SIGINT)\n"
+        "    os.kill(os.getpid(), signal.SIGINT)\n"
+        "    time.sleep(5)\n"
+    )
+    env = {**os.environ, "PYTHONPATH": str(README.parent)}
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=env)
+    assert done.returncode == -signal.SIGINT
+    assert "saving a checkpoint after this logging interval" in done.stderr
+    assert "SIGINT again: stopping now without saving" in done.stderr
