@@ -9,11 +9,11 @@ Every entry point runs as a fresh ``python -m ...`` process with its own empty
 process to the CLI's ``compiled in`` line (imports, env construction, tracing, and XLA
 compilation or cache loading: everything before the first training step), and "compile s" the
 compile time the CLI itself reports in ``summary.json``. The runs are shortened to
-``--total-timesteps``, rounded up to whole logging intervals (one by default); the compiled
-programs are the same as a full run's, since the CLI compiles one logging interval and calls
-it repeatedly. For ``jaxnav.evaluate`` (one compiled program that plays all episodes), "first
-step s" is the wall time of the whole command. ``import`` is
-``python -c "import jaxnav.train.__main__"`` (the training command line and all it imports): the floor under every start-up time.
+``--total-timesteps``, rounded up to whole logging intervals (one by default); the compiled programs
+are the same as a full run's, since the CLI compiles one logging interval and calls it repeatedly.
+For ``jaxnav.evaluate`` (one compiled program that plays all episodes), "first step s" is the wall
+time of the whole command. ``import`` is ``python -c "import jaxnav.train.__main__"`` (the training
+command line and all it imports): the floor under every start-up time.
 
 Each run also records where JAX spent its compile time (``jax.monitoring`` durations, summed
 over every program of the process, evaluation included): tracing to a jaxpr, lowering to
