@@ -1,34 +1,48 @@
-# Quickstart: `make train` and `make test`. Both create .venv (Python >= 3.10) on first use.
+# Quickstart: `make train` and `make test`. Both create .venv (Python >= 3.11) on first use;
+# each target installs only what it needs: train the package, test adds the dev and notebook
+# extras, bench the benchmark peers, notebooks Jupyter.
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
-STAMP := $(VENV)/.installed
 ARGS ?=
 
-.PHONY: train test lint bench clean
+.PHONY: train test lint bench notebooks clean
 
 $(BIN)/python:
+	@$(PYTHON) -c 'import sys; sys.exit(sys.version_info < (3, 11))' 2>/dev/null || { \
+	  echo "jaxnav needs Python >= 3.11 (jax, flax and mujoco do); $(PYTHON) is $$($(PYTHON) -V 2>&1): use e.g. PYTHON=python3.11 make ..."; \
+	  exit 1; }
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 
-$(STAMP): pyproject.toml | $(BIN)/python
-	$(BIN)/python -m pip install --quiet -e ".[dev,notebook,bench]"
-	touch $(STAMP)
+# one stamp per extra, remade when pyproject.toml changes
+$(VENV)/.installed-core: pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install --quiet -e .
+	touch $@
 
-train: $(STAMP)
+$(VENV)/.installed-%: pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install --quiet -e ".[$*]"
+	touch $@
+
+train: $(VENV)/.installed-core
 	$(BIN)/python -m jaxnav.train $(ARGS)
 
-test: $(STAMP)
+test: $(VENV)/.installed-dev
 	$(BIN)/python -m ruff check jaxnav tests benchmarks
 	$(BIN)/python -m pytest -n 2 --dist loadgroup $(ARGS)
 
-lint: $(STAMP)
+lint: $(VENV)/.installed-dev
 	$(BIN)/python -m ruff check jaxnav tests benchmarks
 
 # ours vs gymnax, navix, jaxmarl's JaxNav and rejax in one run; ARGS="--num-envs 1024,262144" etc.
-bench: $(STAMP)
+bench: $(VENV)/.installed-bench
 	$(BIN)/python -m benchmarks.compare $(ARGS)
 	$(BIN)/python -m benchmarks.train_throughput
 
+# executes every notebook top to bottom (copies with their outputs in notebooks/executed/);
+# `$(BIN)/jupyter lab notebooks` opens them instead
+notebooks: $(VENV)/.installed-notebook
+	$(BIN)/jupyter nbconvert --to notebook --execute --output-dir notebooks/executed notebooks/*.ipynb
+
 clean:
-	rm -rf $(VENV) runs .pytest_cache .ruff_cache
+	rm -rf $(VENV) runs notebooks/executed .pytest_cache .ruff_cache

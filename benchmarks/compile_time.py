@@ -9,11 +9,11 @@ Every entry point runs as a fresh ``python -m ...`` process with its own empty
 process to the CLI's ``compiled in`` line (imports, env construction, tracing, and XLA
 compilation or cache loading: everything before the first training step), and "compile s" the
 compile time the CLI itself reports in ``summary.json``. The runs are shortened to
-``--total-timesteps`` (one logging interval by default); the compiled programs are the same
-as a full run's, since the CLI compiles one logging interval and calls it repeatedly. For
-``jaxnav.evaluate`` (one compiled program that plays all episodes), "first step s" is the
-wall time of the whole command. ``import`` is ``python -c "import jaxnav.train.__main__"``
-(the training command line and all it imports): the floor under every start-up time.
+``--total-timesteps``, rounded up to whole logging intervals (one by default); the compiled programs
+are the same as a full run's, since the CLI compiles one logging interval and calls it repeatedly.
+For ``jaxnav.evaluate`` (one compiled program that plays all episodes), "first step s" is the wall
+time of the whole command. ``import`` is ``python -c "import jaxnav.train.__main__"`` (the training
+command line and all it imports): the floor under every start-up time.
 
 Each run also records where JAX spent its compile time (``jax.monitoring`` durations, summed
 over every program of the process, evaluation included): tracing to a jaxpr, lowering to
@@ -172,18 +172,29 @@ def table(rows: list[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
+def short(name: str, total_timesteps: int) -> list[str]:
+    """Flags of a short run of train entry ``name``: ``total_timesteps`` rounded up to whole
+    logging intervals of the entry's preset (the CLI trains whole intervals only)."""
+    from jaxnav.config import TrainConfig
+
+    per_log = TrainConfig.for_env(TRAIN_ENTRIES[name][1]).steps_per_log
+    steps = -(-total_timesteps // per_log) * per_log
+    return ["--quiet", "--total-timesteps", str(steps), "--eval-episodes", "100"]
+
+
 def measure(entries: list[str], total_timesteps: int) -> list[dict[str, Any]]:
     """The import floor, then each entry point twice (evaluate reads the grid run)."""
     with tempfile.TemporaryDirectory(prefix="jaxnav-compile-") as tmp:
         work = Path(tmp)
         rows = [measure_import(work)]
-        short = ["--quiet", "--total-timesteps", str(total_timesteps), "--eval-episodes", "100"]
         for name in entries:
             if name in TRAIN_ENTRIES:
-                rows.append(measure_train(name, TRAIN_ENTRIES[name] + short, work))
+                flags = TRAIN_ENTRIES[name] + short(name, total_timesteps)
+                rows.append(measure_train(name, flags, work))
             else:
                 if not (work / "grid-1").exists():
-                    measure_train("grid", TRAIN_ENTRIES["grid"] + short, work)
+                    flags = TRAIN_ENTRIES["grid"] + short("grid", total_timesteps)
+                    measure_train("grid", flags, work)
                 rows.append(measure_evaluate(work / "grid-1", work))
             print(table(rows[-1:]).splitlines()[-1], file=sys.stderr)
     return rows

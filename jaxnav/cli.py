@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -20,11 +21,65 @@ class UsageError(Exception):
     """Bad command-line input: reported as one line, exit code 2."""
 
 
+class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Defaults in ``--help``, except where there is none (``None``) or the help text already
+    says what the default is."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        if action.default is None or "default" in text or action.default is argparse.SUPPRESS:
+            return text
+        return super()._get_help_string(action) or text
+
+
 class Parser(argparse.ArgumentParser):
-    """An ``ArgumentParser`` whose errors are ``UsageError`` (one line, no usage dump)."""
+    """An ``ArgumentParser`` whose errors are ``UsageError`` (one line, no usage dump). Flags
+    are never abbreviated (``--num-seed`` is not ``--num-seeds``), and an unknown flag that
+    names an env config field is answered with the ``--env-arg`` that sets it."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs.setdefault("allow_abbrev", False)
+        kwargs.setdefault("formatter_class", HelpFormatter)
+        super().__init__(*args, **kwargs)
 
     def error(self, message: str) -> None:  # one line, no usage dump
+        if message.startswith("unrecognized arguments:") and any(
+            a.dest == "env_arg" for a in self._actions
+        ):
+            message += env_arg_hint(message.split(":", 1)[1].split())
         raise UsageError(one_line(message))
+
+
+def env_config_fields() -> set[str]:
+    """Field names of every registered env's config (what ``--env-arg`` can set)."""
+    import dataclasses
+
+    from jaxnav.registration import env_config, registered_envs
+
+    fields: set[str] = set()
+    for env_id in registered_envs():
+        try:
+            fields |= {f.name for f in dataclasses.fields(env_config(env_id))}
+        except ValueError:  # RobotMaze-v0 needs a maze file; its fields are RobotSimple-v0's
+            continue
+    return fields
+
+
+def env_arg_hint(tokens: Sequence[str]) -> str:
+    """``; did you mean --env-arg backend=...`` for the first unknown flag in ``tokens`` that
+    names an env config field (``--backend`` or ``--backend=kinematic``), else ``""``."""
+    fields = env_config_fields()
+    for i, token in enumerate(tokens):
+        if not token.startswith("--"):
+            continue
+        name, eq, value = token[2:].partition("=")
+        key = name.replace("-", "_")
+        if key in fields:
+            if not eq:
+                nxt = tokens[i + 1] if i + 1 < len(tokens) else ""
+                value = "..." if not nxt or nxt.startswith("-") else nxt
+            return f"; did you mean --env-arg {key}={value}"
+    return ""
 
 
 def one_line(message: str) -> str:
@@ -68,7 +123,8 @@ def add_env_args(p: argparse.ArgumentParser) -> None:
         "--maze-file",
         type=Path,
         metavar="PATH",
-        help="your own maze as a text file (README: Mazes); the env id defaults to RobotMaze-v0",
+        help="your own maze as a text file (README: Robot mazes); the env id defaults to "
+        "RobotMaze-v0",
     )
 
 

@@ -4,6 +4,7 @@ the random agent on the same fixed test episodes, write a results directory with
     python -m jaxnav.experiments paper-grid  [--quick] [--seeds 5] [--out DIR]
     python -m jaxnav.experiments paper-robot [--quick] [--maze-file FILE]
     python -m jaxnav.experiments plot DIR    # redraw the figures of a results directory
+    python -m jaxnav.experiments plot RUN    # a training run's curves: RUN/training_curves.png
     python -m jaxnav.experiments generalization RUN... [--family 'ENV_ID K=V ...'] [--out DIR]
 
 Agents: ``dueling-double`` (the paper's model) and ``simple`` (plain DQN: dueling and double
@@ -37,7 +38,7 @@ import numpy as np
 
 from jaxnav import run_dir
 from jaxnav.agents.dqn import AGENT_LABELS, PAPER_AGENTS
-from jaxnav.cli import Parser, UsageError, fail, one_line, parse_env_arg
+from jaxnav.cli import HelpFormatter, Parser, UsageError, fail, one_line, parse_env_arg
 from jaxnav.config import TrainConfig
 from jaxnav.environment import Environment, EnvParams
 from jaxnav.evaluate import (
@@ -230,12 +231,13 @@ def summarize_seeds(episodes: dict[str, np.ndarray]) -> list[dict[str, float | N
 
 
 def mean_ci(values: Sequence[float | None]) -> dict[str, float | None]:
-    """Mean and the half-width of its 95% t-interval over seeds (None if undefined)."""
+    """Mean and the half-width of its 95% t-interval over seeds (None if undefined), and the
+    number of seeds with a value (a seed without successes has no mean steps)."""
     x = np.asarray([v for v in values if v is not None], float)
     if len(x) == 0:
-        return {"mean": None, "ci95": None}
+        return {"mean": None, "ci95": None, "seeds": 0}
     mean, half = t_interval(x)
-    return {"mean": float(mean), "ci95": float(half) if len(x) > 1 else None}
+    return {"mean": float(mean), "ci95": float(half) if len(x) > 1 else None, "seeds": len(x)}
 
 
 # -------------------------------------------------------------------------------- running
@@ -344,10 +346,16 @@ def _train(config: TrainConfig, path: Path, quiet: bool) -> dict[str, Any]:
 
 
 # -------------------------------------------------------------------------------- tables
-def _cell(stat: dict[str, float | None], digits: int = 3) -> str:
+def _cell(stat: dict[str, float | None], digits: int = 3, n_seeds: int | None = None) -> str:
+    """``mean ± ci95``; with the seeds behind it where they are fewer than ``n_seeds`` or the
+    interval is wider than the mean (a few seeds, far apart: read the interval with care)."""
     if stat["mean"] is None:
         return "n/a"
     ci = "" if stat["ci95"] is None else f" ± {stat['ci95']:.{digits}f}"
+    seeds = stat.get("seeds")
+    wide = stat["ci95"] is not None and stat["ci95"] > abs(stat["mean"])
+    if seeds is not None and (wide or (n_seeds is not None and seeds < n_seeds)):
+        ci += f" (n={seeds})"
     return f"{stat['mean']:.{digits}f}{ci}"
 
 
@@ -368,7 +376,9 @@ def results_markdown(results: dict[str, Any]) -> str:
     ]
     for suite_name, suite in results["suites"].items():
         for agent, row in suite["agents"].items():
-            cells = [_cell(row[m], 2 if "steps" in m or "length" in m else 3) for m in METRICS]
+            cells = [
+                _cell(row[m], 2 if "steps" in m or "length" in m else 3, n_seeds) for m in METRICS
+            ]
             lines.append(f"| {suite_name} | {LABELS[agent]} | " + " | ".join(cells) + " |\n")
     trained = results["training"]
     lines.append("\nTraining (all seeds in one program per agent):\n\n")
@@ -630,13 +640,13 @@ def parser() -> argparse.ArgumentParser:
         "paper-grid",
         parents=[common],
         help="Fig. 4: grid, 1000 test episodes",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     robot = sub.add_parser(
         "paper-robot",
         parents=[common],
         help="Fig. 7: robot mazes and generalization, 100 test episodes",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     robot.add_argument(
         "--maze-file",
@@ -653,7 +663,7 @@ def parser() -> argparse.ArgumentParser:
     gen = sub.add_parser(
         "generalization",
         help="evaluate trained runs on maze families never trained on",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     gen.add_argument("runs", type=Path, nargs="+", metavar="RUN", help="run directories")
     gen.add_argument(
@@ -680,8 +690,12 @@ def parser() -> argparse.ArgumentParser:
         help="episodes in a trajectory GIF per maze-file family (first run, first seed; 0: none)",
     )
     gen.add_argument("--out", type=Path, help="results directory (default: runs/<name>-<time>)")
-    plot = sub.add_parser("plot", help="redraw the figures of a results directory")
-    plot.add_argument("dir", type=Path)
+    plot = sub.add_parser(
+        "plot",
+        help="redraw the figures of a results directory, or draw a training run's curves "
+        "(RUN/training_curves.png from its metrics.csv)",
+    )
+    plot.add_argument("dir", type=Path, help="a results directory or a run directory")
     return p
 
 
@@ -719,6 +733,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             ]
         for study in studies:  # every value checked before anything is trained or written
             study.config.validate()
+            study.config.check_whole_intervals()  # exactly the steps asked for
             for suite in study.suites:
                 cfg = env_config(suite.env, **suite.env_kwargs)
                 if suite.first_layout and cfg.num_layouts <= suite.first_layout:
@@ -743,6 +758,17 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _replot(directory: Path) -> int:
     from jaxnav import plots
 
+    if (directory / "metrics.csv").is_file() and not (directory / "results.json").is_file():
+        try:  # one training run
+            config = run_dir.load_config(directory)
+            metrics = plots.read_run_metrics(directory)
+            fig = plots.run_curves(metrics, f"{config.env} ({config.algo})")
+        except (OSError, ValueError, KeyError) as e:
+            return fail("jaxnav.experiments", f"{directory}: unreadable run ({e})")
+        path = directory / "training_curves.png"
+        plots.save(fig, path)
+        print(f"wrote {path}")
+        return 0
     try:
         results = json.loads((directory / "results.json").read_text())
         with np.load(directory / "episodes.npz") as f:

@@ -1,4 +1,5 @@
-"""Figures of an experiment's results directory (``jaxnav.experiments``), as PNG files.
+"""Figures of an experiment's results directory (``jaxnav.experiments``), as PNG files, and of
+one training run (``python -m jaxnav.experiments plot RUN``: ``RUN/training_curves.png``).
 
 ``draw_all`` reads only ``results.json``'s data and ``episodes.npz``'s arrays, so a results
 directory can be redrawn (``python -m jaxnav.experiments plot DIR``) or loaded in a notebook:
@@ -38,6 +39,59 @@ CURVES = (
 FIRST_EPISODES = 100  # test episodes shown one by one in the comparison
 
 
+def steps_axis(ax: Any) -> None:
+    """Env steps as 100k, 2M, ...: at most 5 ticks, so their labels never run together."""
+    from matplotlib.ticker import EngFormatter, MaxNLocator
+
+    ax.xaxis.set_major_locator(MaxNLocator(5))
+    ax.xaxis.set_major_formatter(EngFormatter(sep=""))
+
+
+def read_run_metrics(run: Path) -> dict[str, np.ndarray]:
+    """A run directory's metrics.csv as ``{metric: float[seeds, logs]}`` (``env_steps`` too),
+    seeds in the order they first appear."""
+    import csv
+
+    with (run / "metrics.csv").open(newline="") as f:
+        rows = list(csv.DictReader(f))
+    if not rows:
+        raise ValueError(f"{run / 'metrics.csv'}: no rows")
+    seeds = list(dict.fromkeys(r["seed"] for r in rows))
+    by_seed = [[r for r in rows if r["seed"] == s] for s in seeds]
+    names = [k for k in rows[0] if k != "seed"]
+    return {k: np.array([[float(r[k]) for r in rs] for rs in by_seed]) for k in names}
+
+
+def run_curves(metrics: dict[str, np.ndarray], title: str) -> Any:
+    """One run's training curves (``CURVES``): each seed thin, the mean over seeds thick with
+    its 95% t-band when there are several."""
+    steps = metrics["env_steps"][0]
+    n_seeds = metrics["env_steps"].shape[0]
+    fig, axes = plt.subplots(1, len(CURVES), figsize=(3.6 * len(CURVES), 3.2), squeeze=False)
+    for ax, (metric, label) in zip(axes[0], CURVES, strict=True):
+        values = np.asarray(metrics[metric], float)
+        if metric == "loss":  # no updates yet during warm-up: nothing to plot
+            values = np.where(values > 0, values, np.nan)
+        for v in values:
+            ax.plot(steps, v, color="tab:blue", lw=0.7, alpha=0.35 if n_seeds > 1 else 1.0)
+        if n_seeds > 1:
+            mean, half = t_interval(values)
+            ax.plot(steps, mean, color="tab:blue", lw=2)
+            ax.fill_between(steps, mean - half, mean + half, color="tab:blue", alpha=0.2)
+        if metric == "loss":
+            ax.set_yscale("log")
+        if metric == "success_rate":
+            ax.set_ylim(-0.02, 1.02)
+        steps_axis(ax)
+        ax.set_xlabel("env steps per seed")
+        ax.set_title(label, fontsize=10)
+        ax.grid(alpha=0.3)
+    seeds = f"{n_seeds} seeds, mean and 95% CI" if n_seeds > 1 else "1 seed"
+    fig.suptitle(f"{title}: training (epsilon-greedy episodes), {seeds}", fontsize=11)
+    fig.tight_layout(rect=(0, 0, 1, 0.92))
+    return fig
+
+
 def training_curves(results: dict[str, Any]) -> Any:
     studies = results["training"]
     n_seeds = len(results["seeds"])
@@ -59,6 +113,7 @@ def training_curves(results: dict[str, Any]) -> Any:
                 ax.set_yscale("log")
             if metric == "success_rate":
                 ax.set_ylim(-0.02, 1.02)
+            steps_axis(ax)
             ax.set_xlabel("env steps per seed")
             ax.set_title(f"{next(iter(agents.values()))['env']}: {label}", fontsize=10)
             ax.grid(alpha=0.3)
@@ -181,9 +236,14 @@ def draw_all(directory: Path, results: dict[str, Any], arrays: dict[str, np.ndar
     paths = []
     for name, fig in figures.items():
         path = Path(directory) / name
-        tmp = path.with_name(f".{path.stem}.partial.png")
-        fig.savefig(tmp, dpi=110)
-        plt.close(fig)
-        os.replace(tmp, path)
+        save(fig, path)
         paths.append(path)
     return paths
+
+
+def save(fig: Any, path: Path) -> None:
+    """Write ``fig`` to ``path`` whole (a temporary file, then renamed) and close it."""
+    tmp = path.with_name(f".{path.stem}.partial{path.suffix}")
+    fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    os.replace(tmp, path)

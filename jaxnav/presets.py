@@ -24,7 +24,9 @@ ROBOT_DQN: dict[str, Any] = {
     "gamma": 0.95,
     "n_step": 3,
     "eps_decay_steps": 400_000,
-    "log_interval": 100_000,
+    # 1250 iterations of 64 envs: 2M steps are 25 whole intervals (the CLI trains exactly the
+    # steps asked for; 100_000 was 99,968 steps an interval and ran 2,099,328 steps)
+    "log_interval": 80_000,
 }
 
 # PQN: LayerNorm network, lambda-returns over rollouts of many envs (Gallici et al. 2024)
@@ -38,16 +40,21 @@ PQN: dict[str, Any] = {
     "td_lambda": 0.65,
     "lr": 1e-3,
     "lr_end": 1e-4,
+    # 32 iterations of 64 x 8 steps an interval, 15 intervals: whole intervals, as the CLI asks
+    "log_interval": 16_384,
+    "total_timesteps": 245_760,
 }
 ROBOT_PQN: dict[str, Any] = {
     **PQN,
     "num_envs": 256,
     "rollout_length": 16,
     "num_minibatches": 8,
-    "total_timesteps": 4_000_000,
+    # 1000 iterations of 256 x 16 steps in 20 intervals of 50 (4M was not a whole number of
+    # iterations; it ran 21 intervals of 196,608: 4,128,768 steps)
+    "total_timesteps": 4_096_000,
     "gamma": 0.95,
     "eps_decay_steps": 800_000,
-    "log_interval": 200_000,
+    "log_interval": 204_800,
 }
 
 # PQN at a GPU's scale for RobotNav-v0, the generalist (README: "The generalist robot").
@@ -64,11 +71,13 @@ GENERALIST_PQN: dict[str, Any] = {
     "rollout_length": 32,
     "num_minibatches": 64,
     "num_epochs": 4,
-    "total_timesteps": 200_000_000,
+    # 800 iterations of 8192 x 32 steps in 20 intervals of 40: whole intervals (200M asked
+    # before was rounded up to 21 intervals of 38 iterations, 209,190,912 steps)
+    "total_timesteps": 209_715_200,
     "gamma": 0.99,
     "td_lambda": 0.9,
     "eps_decay_steps": 20_000_000,
-    "log_interval": 10_000_000,
+    "log_interval": 10_485_760,
 }
 
 _ROBOT_IDS = ("RobotSimple-v0", "RobotComplex-v0", "RobotRandom-v0", "RobotMaze-v0", "RobotNav-v0")

@@ -1,7 +1,8 @@
 """Trajectories as pictures: record episodes inside jit, draw them outside on numpy.
 
-    python -m jaxnav.render RUN_DIR --episodes 4 --out traj.gif   # animated
+    python -m jaxnav.render RUN_DIR --episodes 4                  # animated, RUN_DIR/traj.gif
     python -m jaxnav.render RUN_DIR --episodes 4 --out traj.png   # paths and laser fans
+    python -m jaxnav.render RUN_DIR --episodes 4 --out traj.pdf   # the same, vector
 
 ``record`` plays episodes with ``evaluate.play(record=True)`` (one compiled scan that returns
 every state, and the env's ``sensor_ranges`` of every state, e.g. the robot's laser ranges) and
@@ -18,6 +19,7 @@ import dataclasses
 import math
 import os
 import sys
+import textwrap
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -27,7 +29,7 @@ import numpy as np
 
 from jaxnav import run_dir
 from jaxnav.agents import dqn
-from jaxnav.cli import Parser, UsageError, add_env_args, env_from_args, fail
+from jaxnav.cli import HelpFormatter, Parser, UsageError, add_env_args, env_from_args, fail
 from jaxnav.environment import Environment, EnvParams
 from jaxnav.evaluate import Policy, play, random_policy
 from jaxnav.programs import enable_compilation_cache
@@ -35,6 +37,7 @@ from jaxnav.safe_io import check_output_file
 from jaxnav.train import Trainer
 
 OUTCOMES = ("success", "collision", "timeout")
+OUT_SUFFIXES = (".gif", ".png", ".svg", ".pdf")  # animated; raster; vector (papers)
 Episode = dict[str, np.ndarray]
 
 
@@ -104,6 +107,7 @@ def draw_episode(
     if laser_steps is None:
         laser_steps = [t] if upto is not None else np.linspace(0, steps, 4).round().astype(int)
     width, height = (float(v) for v in ep["arena"])
+    robot = bool(ep["laser_angles"].size)
     ax.clear()
     ax.set_xlim(0, width)
     ax.set_ylim(0, height)
@@ -111,7 +115,13 @@ def draw_episode(
     ax.set_xticks([])
     ax.set_yticks([])
     ax.add_patch(Rectangle((0, 0), width, height, fill=False, lw=2, color="black"))
-    if not ep["laser_angles"].size:  # grid: show the cells
+    if robot:  # a metre scale: ticks in metres along the bottom and left edges
+        step = metre_step(max(width, height))
+        ax.set_xticks(np.arange(0, width + 1e-6, step))
+        ax.set_yticks(np.arange(0, height + 1e-6, step))
+        ax.tick_params(labelsize=7, length=2, pad=1)
+        ax.set_xlabel("m", fontsize=7, labelpad=1)
+    else:  # grid: show the cells
         ax.set_xticks(np.arange(width + 1), minor=True)
         ax.set_yticks(np.arange(height + 1), minor=True)
         ax.grid(which="minor", color="0.85", lw=0.5)
@@ -131,10 +141,25 @@ def draw_episode(
     ax.plot(*xy[0], marker="o", color="tab:green", ms=8, zorder=4, label="start")
     ax.plot(xy[: t + 1, 0], xy[: t + 1, 1], color="tab:blue", lw=1.5, zorder=3, label="path")
     ax.add_patch(Circle(xy[t], radius, color="tab:blue", alpha=0.8, zorder=5))
-    if ep["laser_angles"].size:  # heading tick
-        tip = xy[t] + 2 * radius * np.array([np.cos(heading[t]), np.sin(heading[t])])
-        ax.plot([xy[t, 0], tip[0]], [xy[t, 1], tip[1]], color="black", lw=1.5, zorder=6)
-    ax.set_title(title if title is not None else describe(ep), fontsize=9)
+    if robot:  # drawn at least 2.5% of the arena wide (a 0.15 m disc is a dot in 10 m), with an
+        # arrow for its heading; the true footprint stays inside it
+        shown = max(radius, 0.025 * max(width, height))
+        ax.add_patch(Circle(xy[t], shown, fill=False, ec="black", lw=1, zorder=6))
+        d = 2.6 * shown * np.array([np.cos(heading[t]), np.sin(heading[t])])
+        ax.annotate(
+            "", xy[t] + d, xy[t], zorder=6, arrowprops={"arrowstyle": "-|>", "lw": 1.5}
+        )
+    text = title if title is not None else describe(ep)
+    ax.set_title(textwrap.fill(text, 34), fontsize=8)  # two short lines, never into a neighbour
+
+
+def metre_step(size: float) -> float:
+    """Tick spacing in metres giving 3 to 6 ticks over ``size`` metres (1, 2 or 5 times a
+    power of ten)."""
+    for step in (0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0):
+        if size / step <= 6:
+            return step
+    return 10.0 ** math.ceil(math.log10(size / 5))
 
 
 def _grid_shape(n: int) -> tuple[int, int]:
@@ -152,10 +177,12 @@ def trajectories_figure(episodes: Sequence[Episode], title: str = "") -> Any:
         draw_episode(ax, ep)
     for ax in axes.ravel()[len(episodes) :]:
         ax.axis("off")
-    axes[0, 0].legend(loc="upper left", fontsize=7, framealpha=0.9)
+    # one legend for all panels, below them: inside a panel it hides part of the maze
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=len(labels), fontsize=8, frameon=False)
     if title:
         fig.suptitle(title)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.05, 1, 1))
     return fig
 
 
@@ -201,7 +228,7 @@ def parser() -> argparse.ArgumentParser:
     p = Parser(
         prog="python -m jaxnav.render",
         description="Draw episodes of a trained run: an animated GIF or a PNG of the paths.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     p.add_argument("run", type=Path, nargs="?", help="run directory written by jaxnav.train")
     p.add_argument(
@@ -210,13 +237,18 @@ def parser() -> argparse.ArgumentParser:
         help="a policy shipped with jaxnav instead of a run (python -m jaxnav.pretrained)",
     )
     p.add_argument("--episodes", type=int, default=4, help="episodes drawn side by side (1-16)")
-    p.add_argument("--out", type=Path, default=Path("traj.gif"), help=".gif or .png")
+    p.add_argument(
+        "--out",
+        type=Path,
+        help=".gif (animated), .png, or .svg/.pdf (vector) (default: RUN/traj.gif, in the run "
+        "directory; NAME.gif with --pretrained)",
+    )
     p.add_argument("--seed", type=int, default=0, help="seed of the episodes' starts and goals")
     p.add_argument("--run-seed", type=int, help="which trained seed (default: the run's first)")
     p.add_argument("--policy", choices=("trained", "random"), default="trained")
     p.add_argument("--env", help="draw on another env id; default: the run's")
     add_env_args(p)
-    p.add_argument("--fps", type=int, default=10)
+    p.add_argument("--fps", type=int, default=10, help="frames per second of a GIF (1-100)")
     return p
 
 
@@ -225,16 +257,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     prog = "jaxnav.render"
     try:
         args = parser().parse_args(argv)
+        if (args.run is None) == (args.pretrained is None):
+            raise UsageError("give a run directory or --pretrained NAME, one of them")
+        if args.out is None:  # a run's pictures belong with the run, not in the cwd
+            args.out = Path(f"{args.pretrained}.gif") if args.run is None else args.run / "traj.gif"
         if not 1 <= args.episodes <= 16:
             raise UsageError(f"--episodes {args.episodes}: must be in [1, 16]")
-        if args.out.suffix not in (".gif", ".png"):
-            raise UsageError(f"--out {args.out}: must end in .gif or .png")
+        if args.out.suffix not in OUT_SUFFIXES:
+            raise UsageError(f"--out {args.out}: must end in {', '.join(OUT_SUFFIXES)}")
         check_output_file(args.out)  # a directory or a device is refused, not replaced
         if args.seed < 0 or not 1 <= args.fps <= 100:
             bad = f"--seed {args.seed}" if args.seed < 0 else f"--fps {args.fps}"
             raise UsageError(f"{bad}: out of range")
-        if (args.run is None) == (args.pretrained is None):
-            raise UsageError("give a run directory or --pretrained NAME, one of them")
         if args.pretrained is not None:
             from jaxnav.export import load_pretrained
 
@@ -250,10 +284,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.pretrained is None:
             trainer = Trainer(config)
             params = run_dir.load_trained_params(args.run, trainer)
-            if args.env is not None or args.env_arg:
-                kwargs = {**(config.env_kwargs if args.env is None else {}), **dict(args.env_arg)}
+            env_id, overrides = env_from_args(args, args.env)  # --maze-file: RobotMaze-v0
+            if env_id is not None or overrides:
+                kwargs = {**(config.env_kwargs if env_id is None else {}), **overrides}
                 env_trainer = Trainer(
-                    dataclasses.replace(config, env=args.env or config.env, env_kwargs=kwargs)
+                    dataclasses.replace(config, env=env_id or config.env, env_kwargs=kwargs)
                 )
                 dqn.check_input_fits(
                     env_trainer.config.env, env_trainer.network_input, trainer.network_input
@@ -281,8 +316,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         matplotlib.use("Agg")
         fig = trajectories_figure(episodes, title)
-        tmp = args.out.with_name(f".{args.out.stem}.partial.png")
-        fig.savefig(tmp, dpi=110)
+        tmp = args.out.with_name(f".{args.out.stem}.partial{args.out.suffix}")
+        fig.savefig(tmp, dpi=110)  # .svg and .pdf: vector, for papers
         os.replace(tmp, args.out)
         print(f"wrote {args.out}")
     for i, ep in enumerate(episodes):

@@ -248,7 +248,11 @@ def seed_keys(config: TrainConfig) -> jax.Array:
 
 
 def load_config(run: Path) -> TrainConfig:
+    """A run's config; ``ValueError`` for a directory that is no run, naming the command that
+    continues an unfinished run when there is one at ``run``."""
     path = run / "config.json"
+    if not path.is_file() and (partial_dir(run) / "config.json").is_file():
+        raise unfinished_error(run)
     if not path.is_file():
         raise ValueError(f"{run}: not a run directory (no config.json)")
     try:
@@ -314,8 +318,21 @@ def write_trained(
     save_params(run, params)
 
 
+def unfinished_error(run: Path) -> ValueError:
+    """The error for using the unfinished run ``run`` (its ``--out`` or its partial directory)
+    as a trained one: it has no parameters yet; ``--resume`` finishes it."""
+    if run.name.startswith(".") and run.name.endswith(".partial"):
+        run = run.with_name(run.name[1 : -len(".partial")])
+    return ValueError(
+        f"{run}: an unfinished run (training stopped before its end; no trained parameters "
+        f"yet); finish it with: python -m jaxnav.train --resume {run}"
+    )
+
+
 def load_trained_params(run: Path, trainer: Trainer) -> Any:
     """The run's parameters (seeds stacked), shaped by ``trainer``'s network."""
+    if not (run / "params").exists() and (run / "checkpoints").is_dir():
+        raise unfinished_error(run)
     init = lambda k: trainer.network.init(k, jnp.zeros((1, trainer.obs_size)))  # noqa: E731
     like = jax.eval_shape(jax.vmap(init), seed_keys(trainer.config))
     return load_params(run, like)

@@ -18,7 +18,7 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -26,7 +26,7 @@ import jax
 import numpy as np
 from jax.experimental import multihost_utils
 
-from jaxnav import programs, run_dir, sharding
+from jaxnav import loggers, programs, run_dir, sharding
 from jaxnav.checkpoints import Checkpoints
 from jaxnav.config import TrainConfig
 from jaxnav.evaluate import evaluate_seeds, mean_of, print_eval_table
@@ -67,8 +67,11 @@ def open_run(trainer: Trainer, partial: Path, checkpointing: dict[str, int] | No
 class Progress:
     """Progress lines, one per logging interval, printed between the compiled intervals."""
 
-    def __init__(self, config: TrainConfig, quiet: bool):
+    def __init__(
+        self, config: TrainConfig, quiet: bool, sinks: Sequence[loggers.MetricsLogger] = ()
+    ):
         self.config, self.quiet = config, quiet
+        self.sinks = sinks  # TensorBoard, W&B: each interval's metrics, quiet or not
         self.seconds: dict[int, float] = {}  # wall time of each interval, by its env steps
         self.restart(0)
 
@@ -83,6 +86,8 @@ class Progress:
         steps = int(np.ravel(metrics["env_steps"])[0])
         now = time.perf_counter()
         self.seconds[steps], self.last = now - self.last, now
+        for sink in self.sinks:
+            sink.log(metrics, steps)
         if self.quiet:
             return
         elapsed = now - self.start
@@ -92,7 +97,7 @@ class Progress:
         mean = lambda k: float(np.mean(metrics[k]))  # noqa: E731
         print(
             f"[{elapsed:6.1f}s] steps {steps:>9,}/{total:,} ({100 * steps / total:3.0f}%) | "
-            f"{sps:>8,.0f} steps/s | success {mean('success_rate'):.3f} | "
+            f"{sps:>8,.0f} steps/s | train success (eps-greedy) {mean('success_rate'):.3f} | "
             f"return {mean('mean_return'):6.2f} | length {mean('mean_length'):5.1f} | "
             f"loss {mean('loss'):.4f} | eps {mean('epsilon'):.2f} | ETA {eta:4.0f}s",
             flush=True,
@@ -326,6 +331,12 @@ def stop_on_signals(received: list[int]) -> Iterator[None]:
 
     def handler(signum: int, frame: Any) -> None:
         if received:  # asked twice: stop now, the last checkpoint stays
+            print(
+                f"\n{signal.Signals(signum).name} again: stopping now without saving; "
+                "--resume continues from the last checkpoint",
+                file=sys.stderr,
+                flush=True,
+            )
             signal.signal(signum, signal.SIG_DFL)
             os.kill(os.getpid(), signum)
         received.append(signum)

@@ -128,8 +128,8 @@ def test_mean_ci_is_the_t_interval():
     assert ci["ci95"] == pytest.approx(
         4.302653 / np.sqrt(3), rel=1e-5
     )  # t(0.975, 2) * sd / sqrt(n)
-    assert experiments.mean_ci([None, None]) == {"mean": None, "ci95": None}
-    assert experiments.mean_ci([0.5, None]) == {"mean": 0.5, "ci95": None}
+    assert experiments.mean_ci([None, None]) == {"mean": None, "ci95": None, "seeds": 0}
+    assert experiments.mean_ci([0.5, None]) == {"mean": 0.5, "ci95": None, "seeds": 1}
 
 
 @pytest.mark.parametrize("env_id", ["GridMaze-v0", "RobotSimple-v0"])

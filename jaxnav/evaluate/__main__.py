@@ -1,16 +1,21 @@
 """``python -m jaxnav.evaluate``: a trained run (greedy) or the random agent on fresh episodes,
-written to ``RUN/eval.json`` with the table printed. Bad input is one line on stderr, exit code 2.
+written to ``RUN/eval.json`` (the trained policy on the run's env; other policies, envs and
+overrides each get their own file, see ``default_out_name``) with the table printed. Bad input
+is one line on stderr, exit code 2.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import re
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 from jaxnav import run_dir
-from jaxnav.cli import Parser, UsageError, add_env_args, env_from_args, fail
+from jaxnav.cli import HelpFormatter, Parser, UsageError, add_env_args, env_from_args, fail
 from jaxnav.evaluate import (
     SEED_STATISTICS,
     evaluate_seeds,
@@ -27,7 +32,7 @@ def parser() -> argparse.ArgumentParser:
     p = Parser(
         prog="python -m jaxnav.evaluate",
         description="Evaluate a trained run (greedy) or the random agent on fresh episodes.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     p.add_argument("run", type=Path, nargs="?", help="run directory written by jaxnav.train")
     p.add_argument(
@@ -38,11 +43,35 @@ def parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--env", help="evaluate on another env id (generalization); default: the run's")
     add_env_args(p)
-    p.add_argument("--episodes", type=int, default=1000)
+    p.add_argument("--episodes", type=int, default=1000, help="test episodes per seed")
     p.add_argument("--seed", type=int, default=0, help="seed of the test episodes")
     p.add_argument("--policy", choices=("trained", "random"), default="trained")
-    p.add_argument("--out", type=Path, help="output JSON (default: RUN/eval.json)")
+    p.add_argument(
+        "--out",
+        type=Path,
+        help="output JSON (default: RUN/eval.json for the trained policy on the run's env; "
+        "RUN/eval-POLICY[-ENV][-MAZE][-KEY=VALUE...].json otherwise, one file each)",
+    )
     return p
+
+
+def default_out_name(policy: str, env: str | None, overrides: dict[str, Any]) -> str:
+    """The file name of an evaluation in its run directory, one per policy, env, maze file and
+    override set, so no evaluation overwrites another: ``eval.json`` for the trained policy on
+    the run's own env, e.g. ``eval-random.json`` or ``eval-trained-RobotMaze-v0-rooms.json``."""
+    overrides = dict(overrides)
+    parts = ["eval"]
+    maze = overrides.pop("maze_file", None)
+    if policy == "trained" and env is None and maze is None and not overrides:
+        return "eval.json"
+    parts.append(policy)
+    if env is not None:
+        parts.append(env)
+    if maze is not None:
+        parts.append(Path(str(maze)).stem)
+    parts += [f"{k}={json.dumps(v) if not isinstance(v, str) else v}" for k, v in overrides.items()]
+    # a file name, whatever the values hold (a path, spaces, quotes)
+    return re.sub(r"[^A-Za-z0-9_.=+,-]", "_", "-".join(parts))[:200] + ".json"
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -59,7 +88,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         env, overrides = env_from_args(args, args.env)
         if args.run is not None:
             config = run_dir.load_config(args.run)
-        out = args.out or (None if args.run is None else args.run / "eval.json")
+        out = args.out or (
+            None if args.run is None else args.run / default_out_name(args.policy, env, overrides)
+        )
         if out is not None:
             check_output_file(out)  # a directory or a device is refused, not replaced
         if args.pretrained is not None:

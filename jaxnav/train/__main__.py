@@ -22,7 +22,7 @@ from typing import Any
 
 import jax
 
-from jaxnav import run_dir, runner, sharding
+from jaxnav import loggers, run_dir, runner, sharding
 from jaxnav.cli import Parser, UsageError, add_env_args, env_from_args, fail, one_line
 from jaxnav.config import MAX_STEPS, TrainConfig
 from jaxnav.presets import train_defaults
@@ -147,6 +147,17 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, help="run directory (default: runs/<env>-<time>)")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     p.add_argument(
+        "--tensorboard",
+        action="store_true",
+        help="also write the metrics as TensorBoard event files to OUT/tensorboard "
+        "(tensorboard --logdir OUT; needs pip install -e \".[tensorboard]\")",
+    )
+    p.add_argument(
+        "--wandb",
+        action="store_true",
+        help="also log the metrics to Weights & Biases (needs wandb)",
+    )
+    p.add_argument(
         "--resume",
         type=Path,
         metavar="OUT",
@@ -226,12 +237,17 @@ def _prepare_training(
     argv: list[str],
 ) -> tuple[argparse.Namespace, TrainConfig, Path, Path, Trainer]:
     args = parser().parse_args(argv)
+    if args.tensorboard:  # asked for but not installed: say so before anything is written
+        loggers.require("tensorboardX", "--tensorboard")
+    if args.wandb:
+        loggers.require("wandb", "--wandb")
     start_hosts(args)
     if args.resume is not None:
         out, partial, config = resumable_run(args, argv)
     else:
         config = config_from_args(args)
         config.validate()
+        config.check_whole_intervals()
         out = args.out or Path("runs") / f"{config.env}-{time.strftime('%Y%m%d-%H%M%S')}"
         partial = run_dir.partial_dir(out)
         if runner.is_primary():
@@ -274,7 +290,8 @@ def _main(argv: Sequence[str] | None, locks: list[run_dir.RunLock]) -> int:
         return fail(prog, str(e))
     except OSError as e:
         return runner.disk_full(prog, e, resume)
-    progress = runner.Progress(config, args.quiet or not runner.is_primary())
+    sinks: list[loggers.MetricsLogger] = []
+    progress = runner.Progress(config, args.quiet or not runner.is_primary(), sinks)
 
     enable_compilation_cache()
     steps_per_log = config.steps_per_log
@@ -282,6 +299,13 @@ def _main(argv: Sequence[str] | None, locks: list[run_dir.RunLock]) -> int:
     saving = runner.Saving(partial, every, args.keep_checkpoints)
     checkpointing = {k: getattr(args, k) for k in CHECKPOINT_FLAGS}
     runner.open_run(trainer, partial, checkpointing if args.resume is None else None)
+    if runner.is_primary():  # in the run directory, renamed with it when the run completes
+        seeds = run_dir.seeds_of(config)
+        if args.tensorboard:
+            sinks.append(loggers.TensorBoardLogger(partial / "tensorboard", seeds))
+        if args.wandb:
+            document = run_dir.config_to_json(config)
+            sinks.append(loggers.WandbLogger(out.name, document, partial, seeds))
     runner.print_primary(
         f"training {config.env} for {config.total_timesteps:,} steps x {config.num_seeds} "
         f"seed(s), {config.num_envs} envs each on {config.devices} device(s) -> {out}\n"
@@ -312,6 +336,9 @@ def _main(argv: Sequence[str] | None, locks: list[run_dir.RunLock]) -> int:
             if isinstance(e, ValueError):  # a checkpoint that does not restore
                 return fail(prog, str(e))
             raise
+        finally:  # event files complete before the run directory is renamed
+            for sink in sinks:
+                sink.close()
         # a signal from here on is let be: the trained run is complete in seconds
         params = sharding.to_host(state.params)
         if runner.is_primary():

@@ -19,15 +19,17 @@ Text format (``load_maze(path)``, ``parse_maze(text)``)::
     S.#...#G
 
 An optional ``cell_size: <metres>`` header (default 1.0) comes before the grid; the grid is
-rows of ``#`` (wall), ``.`` (free), ``S`` (the start, a free cell) and ``G`` (the goal, a free
-cell), at most one ``S`` and one ``G``. Blank lines may come before and after the grid, not
-inside it; trailing whitespace is ignored. A malformed file raises ``MazeFileError`` (a
+rows of ``#`` (wall), ``.`` (free), ``S`` and ``G`` (free cells marking the region of starts
+and goals, below), at most one ``S`` and one ``G``. Blank lines may come before and after the
+grid, not inside it; trailing whitespace is ignored. A malformed file raises ``MazeFileError`` (a
 ``ValueError``) whose message starts with ``path:line:column:`` (1-based; the column, or the
 line, is left out where none applies).
 
 Robots and goals are placed at *placement cells*: the free cells connected to ``S`` (or to
 ``G``, or the largest connected free region when the file has neither), so a random start and
-goal are always joined by a path. A cell centre is ``cell_size / 2`` from the nearest wall
+goal are always joined by a path. ``S`` and ``G`` choose that region only: resets draw the
+start and the goal at random among its cells (a fixed pair would make every test episode of a
+held-out maze the same one). A cell centre is ``cell_size / 2`` from the nearest wall
 cell along the axes, so a robot of radius below that fits at any placement centre.
 
 Built-in layouts, in the spirit of the paper's Fig. 5 (a 10 m square arena): ``SIMPLE`` (a room
