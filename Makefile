@@ -1,6 +1,7 @@
 # Quickstart: `make train` and `make test`. Both create .venv (Python >= 3.11) on first use;
-# each target installs only what it needs: train the package, test adds the dev and notebook
-# extras, bench the benchmark peers, notebooks Jupyter.
+# each target installs only what it needs: train the package, test adds the dev extra and the
+# benchmark peers (the suite checks the comparisons against them), bench the peers, notebooks
+# Jupyter.
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
@@ -27,7 +28,7 @@ $(VENV)/.installed-%: pyproject.toml | $(BIN)/python
 train: $(VENV)/.installed-core
 	$(BIN)/python -m jaxnav.train $(ARGS)
 
-test: $(VENV)/.installed-dev
+test: $(VENV)/.installed-dev,bench
 	$(BIN)/python -m ruff check jaxnav tests benchmarks
 	$(BIN)/python -m pytest -n 2 --dist loadgroup $(ARGS)
 
