@@ -5,11 +5,14 @@ one line naming the value (exit 2 for the commands). Tiny configs."""
 
 from __future__ import annotations
 
+import dataclasses
 import re
 
 import pytest
 from conftest import TINY_FLAGS  # pytest puts tests/ on sys.path
 
+import jaxnav
+from jaxnav import registration
 from jaxnav.envs.robot import mazes
 from jaxnav.train.__main__ import main as train_main
 
@@ -43,3 +46,48 @@ def test_maze_and_bank_cell_size_out_of_range_is_refused(cell_size):
         mazes.Maze(grid, cell_size)
     with pytest.raises(ValueError, match=re.escape(f"cell_size={cell_size!r}")):
         mazes.random_maze_bank(1, rows=4, cols=4, cell_size=cell_size)
+
+
+# ------------------------------------------------------------------ 2, 3. every float, every bool
+def typed_fields(kind: str) -> list[tuple[str, str]]:
+    """(env id, field) for every field of the grid and robot configs annotated ``kind``."""
+    return [
+        (env_id, f.name)
+        for env_id in ("GridMaze-v0", "RobotSimple-v0")
+        for f in dataclasses.fields(registration.env_config(env_id))
+        if f.type == kind
+    ]
+
+
+FLOAT_FIELDS = typed_fields("float") + [("RobotSimple-v0", "speed_range")]
+
+
+@pytest.mark.parametrize("env_id,name", FLOAT_FIELDS)
+@pytest.mark.parametrize("value", [1e39, -1e39, 1e7])
+def test_every_float_field_beyond_float32_or_a_sane_bound_is_refused(env_id, name, value):
+    config = registration.env_config(env_id)
+    bad = (1.0, value) if name.endswith("_range") else value
+    with pytest.raises(ValueError, match=re.escape(f"{name}={bad!r}")):
+        dataclasses.replace(config, **{name: bad}).validate()
+
+
+@pytest.mark.parametrize("env_id,name", typed_fields("bool"))
+@pytest.mark.parametrize("value", [2, 1, 0, "False", None])
+def test_every_bool_field_refuses_what_is_not_a_bool(env_id, name, value):
+    config = registration.env_config(env_id)  # built directly: config.json, Python callers
+    with pytest.raises(ValueError, match=re.escape(f"{name}={value!r}: must be true or false")):
+        dataclasses.replace(config, **{name: value}).validate()
+
+
+@pytest.mark.parametrize(
+    "arg", ["turn_speed=1e39", "goal_reward=1e39", "obs_proximity=2", "laser_range=1e30"]
+)
+def test_float32_overflow_and_int_bools_on_the_command_line_are_one_line(arg, tmp_path, capsys):
+    out = tmp_path / "r"
+    argv = [*ROBOT, "--env", "RobotSimple-v0", "--env-arg", arg, "--out", str(out)]
+    err = one_line_error(capsys, 2, train_main(argv))
+    name, value = arg.split("=")
+    assert f"{name}={float(value) if 'e' in value else int(value)!r}" in err, err
+    assert not out.exists() and not (tmp_path / ".r.partial").exists()
+    assert len(FLOAT_FIELDS) > 20 and jaxnav.make("RobotSimple-v0", goal_reward=1e6)  # the bound
+

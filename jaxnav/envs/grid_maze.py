@@ -50,6 +50,7 @@ from jaxnav import spaces
 from jaxnav.environment import Environment, EnvParams, EnvState
 from jaxnav.envs.maze_algorithms import (
     bank_distances,
+    check_fields,
     check_int,
     fill_pockets,
     is_number,
@@ -109,6 +110,7 @@ class GridMazeConfig:
             v = getattr(self, name)
             if not is_number(v) or not np.isfinite(v):
                 raise ValueError(f"{name}={v!r}: must be a finite number")
+        check_fields(self)
         # the bank holds a BFS distance field (int16 per cell) for every goal of every layout
         cells = self.size * self.size
         layouts, goals = (

@@ -9,6 +9,8 @@ free cells are neighbours when they share a side (4-connectivity).
 
 from __future__ import annotations
 
+import dataclasses
+import math
 from typing import Any
 
 import jax
@@ -34,6 +36,34 @@ def check_int(name: str, value: Any, lo: int, hi: int | None = None) -> None:
             raise ValueError(f"{name}={value!r}: must be an integer >= {lo}")
     elif not ok or not lo <= value <= hi:
         raise ValueError(f"{name}={value!r}: must be an integer in [{lo}, {hi}]")
+
+
+# Every float of an env config becomes float32 in the jitted step, where 1e39 is inf and
+# sums or squares of a value much beyond this (returns over an episode, squared distances)
+# overflow or lose all precision; no sane reward, speed or length comes near it
+MAX_FLOAT_FIELD = 1e6
+
+
+def check_fields(config: Any) -> None:
+    """``ValueError`` naming the first field of the dataclass ``config`` that is annotated
+    ``bool`` and holds no bool (``2`` or ``"False"``: a shape the observation space does not
+    have), or annotated ``float`` (alone, or in a tuple) and holds no number in
+    ``[-MAX_FLOAT_FIELD, MAX_FLOAT_FIELD]``. The configs' own checks run first and keep their
+    messages; this one covers every field, including those added later."""
+    for f in dataclasses.fields(config):
+        # annotations are strings under ``from __future__ import annotations``
+        kind = f.type if isinstance(f.type, str) else getattr(f.type, "__name__", "")
+        v = getattr(config, f.name)
+        if kind == "bool":
+            if not isinstance(v, (bool, np.bool_)):
+                raise ValueError(f"{f.name}={v!r}: must be true or false")
+        elif kind == "float" or (kind.startswith("tuple[float") and v is not None):
+            for x in v if isinstance(v, tuple) else (v,):
+                if not is_number(x) or not math.isfinite(x) or abs(x) > MAX_FLOAT_FIELD:
+                    raise ValueError(
+                        f"{f.name}={v!r}: must be a finite number of magnitude at most "
+                        f"{MAX_FLOAT_FIELD:g}"
+                    )
 
 
 # ----------------------------------------------------------------------- distance fields

@@ -88,6 +88,7 @@ from flax import struct
 
 from jaxnav import spaces
 from jaxnav.environment import Environment, EnvParams, EnvState
+from jaxnav.envs.maze_algorithms import check_fields
 from jaxnav.envs.robot import generators, geometry, mazes
 
 ACTION_NAMES = ("forward", "backward", "turn_left", "turn_right")
@@ -235,14 +236,13 @@ class RobotConfig:
             raise ValueError(
                 f"laser_fov={self.laser_fov!r}: must be a number of degrees in (0, 360]"
             )
-        if not isinstance(self.obs_absolute, (bool, np.bool_)):
-            raise ValueError(f"obs_absolute={self.obs_absolute!r}: must be True or False")
         generators.check_families(self.families)
         for name in (f.name for f in dataclasses.fields(self) if "reward" in f.name):
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v):
                 raise ValueError(f"{name}={v!r}: must be a finite number")
         self._validate_randomization()
+        check_fields(self)
         travel = self.max_speed * self.dt / self.mjx_substeps
         if self.backend == "mjx" and travel >= self.min_radius:
             # contacts are seen at substep boundaries: a longer substep could carry the
