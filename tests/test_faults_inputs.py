@@ -91,3 +91,21 @@ def test_float32_overflow_and_int_bools_on_the_command_line_are_one_line(arg, tm
     assert not out.exists() and not (tmp_path / ".r.partial").exists()
     assert len(FLOAT_FIELDS) > 20 and jaxnav.make("RobotSimple-v0", goal_reward=1e6)  # the bound
 
+
+# ------------------------------------------------------------------ 4. memory
+def test_per_interval_metrics_too_large_for_memory_are_refused_before_the_run_dir(
+    tmp_path, capsys
+):
+    out = tmp_path / "r"
+    big = ["--num-seeds", "4096", "--log-interval", "1", "--num-envs", "1"]
+    argv = [*TINY_FLAGS, *big, "--total-timesteps", "2000000000", "--out", str(out)]
+    err = one_line_error(capsys, 2, train_main(argv))
+    assert "log_interval=1" in err and "metrics need about" in err and "GiB" in err, err
+    assert not list(tmp_path.iterdir())  # neither the run nor its .partial
+
+
+def test_layout_bank_too_large_to_build_is_refused():
+    kw = dict(num_layouts=1_000_000, size=32, goals_per_layout=1)
+    with pytest.raises(ValueError, match=r"num_layouts=1000000.*building the layout bank"):
+        registration.env_config("GridMaze-Random-v0", **kw)
+    registration.env_config("GridMaze-Random-v0", num_layouts=100_000)  # 15 x 15: 1.8 GiB

@@ -123,9 +123,21 @@ class GridMazeConfig:
                 f"{self.goals_per_layout}: the layout bank's distance fields would take "
                 f"{gib:.1f} GiB (at most {MAX_BANK_GIB})"
             )
+        # building the bank holds more per cell than its distance fields (random draws, sort
+        # orders, cell lists): ~53 bytes per layout cell measured with one goal per layout
+        build = layouts * cells * (BANK_BUILD_BYTES_PER_CELL + 2 * goals) / 2**30
+        if build > MAX_BANK_BUILD_GIB:
+            raise ValueError(
+                f"size={self.size}, num_layouts={self.num_layouts}, goals_per_layout="
+                f"{self.goals_per_layout}: building the layout bank would take about "
+                f"{build:.1f} GiB of memory (at most {MAX_BANK_BUILD_GIB}); use fewer or "
+                "smaller layouts"
+            )
 
 
 MAX_BANK_GIB = 2
+BANK_BUILD_BYTES_PER_CELL = 56
+MAX_BANK_BUILD_GIB = 8
 
 
 def default_config() -> GridMazeConfig:
