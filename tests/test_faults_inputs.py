@@ -6,7 +6,10 @@ one line naming the value (exit 2 for the commands). Tiny configs."""
 from __future__ import annotations
 
 import dataclasses
+import json
 import re
+import shutil
+from pathlib import Path
 
 import pytest
 from conftest import TINY_FLAGS  # pytest puts tests/ on sys.path
@@ -109,3 +112,29 @@ def test_layout_bank_too_large_to_build_is_refused():
     with pytest.raises(ValueError, match=r"num_layouts=1000000.*building the layout bank"):
         registration.env_config("GridMaze-Random-v0", **kw)
     registration.env_config("GridMaze-Random-v0", num_layouts=100_000)  # 15 x 15: 1.8 GiB
+
+
+# ------------------------------------------------------------------ 5. edited config.json
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("trained") / "run"
+    argv = [*TINY_FLAGS, "--total-timesteps", "32", "--eval-episodes", "2", "--out", str(out)]
+    assert train_main(argv) == 0
+    return out
+
+
+EDITS = [{"hidden_sizes": [32]}, {"hidden_sizes": [16, 16]}, {"dueling": False}, {"num_seeds": 2}]
+
+
+@pytest.mark.parametrize("edit", EDITS)
+def test_evaluate_on_a_run_whose_config_was_edited_is_one_line(edit, trained, tmp_path, capsys):
+    from jaxnav.evaluate.__main__ import main as evaluate_main
+
+    run = tmp_path / "run"
+    shutil.copytree(trained, run)
+    saved = json.loads((run / "config.json").read_text())
+    saved["config"].update(edit)  # the training config; "network" describes it for humans
+    (run / "config.json").write_text(json.dumps(saved))
+    err = one_line_error(capsys, 2, evaluate_main([str(run), "--episodes", "1"]))
+    assert f"{run}" in err and "parameters" in err and "config.json" in err, err
+    assert not (run / "eval.json").exists()
