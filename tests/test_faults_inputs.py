@@ -138,3 +138,53 @@ def test_evaluate_on_a_run_whose_config_was_edited_is_one_line(edit, trained, tm
     err = one_line_error(capsys, 2, evaluate_main([str(run), "--episodes", "1"]))
     assert f"{run}" in err and "parameters" in err and "config.json" in err, err
     assert not (run / "eval.json").exists()
+
+
+# ------------------------------------------------------------------ 6. reset_to's cells
+def test_grid_reset_to_refuses_blocked_or_off_map_cells_and_suites_check_first():
+    import jax
+    import numpy as np
+
+    from jaxnav import experiments
+
+    env, params = jaxnav.make("GridMaze-v0", size=7, obstacle_density=0.3)
+    walls = np.asarray(params.bank.obstacles[0])
+    wall = [int(v) for v in np.argwhere(walls)[0]]
+    free = [[int(r), int(c)] for r, c in np.argwhere(~walls)[:2]]
+    key = jax.random.key(0)
+    for start, goal, layout, why in (
+        (wall, free[1], 0, f"reset_to start={wall}: a blocked cell"),
+        (free[0], wall, 0, f"reset_to goal={wall}: a blocked cell"),
+        ([-1, 0], free[1], 0, "reset_to start=[-1, 0]: off the 7x7 grid"),
+        (free[0], [0, 7], 0, "reset_to goal=[0, 7]: off the 7x7 grid"),
+        (free[0], free[1], 1, "layout 1 is not in the bank's 1"),
+    ):
+        with pytest.raises(ValueError, match=re.escape(why)):
+            env.reset_to(key, params, np.array(start), np.array(goal), layout)
+    env.reset_to(key, params, np.array(free[0]), np.array(free[1]))  # free cells: fine
+    suite = {"start": np.array([free[0], wall]), "goal": np.array(free[1::-1]), "layout": [0, 0]}
+    with pytest.raises(ValueError, match=re.escape(f"reset_to start={wall}")):
+        experiments.start_suite(env, params, suite)  # vmapped: checked before
+
+
+def test_robot_reset_to_refuses_a_pose_in_a_wall_or_off_the_arena():
+    import jax
+    import numpy as np
+
+    env, params = jaxnav.make("RobotSimple-v0", backend="kinematic")
+    bank = params.bank
+    rows = bank.grid.shape[1]
+    r, c = (int(v) for v in np.argwhere(np.asarray(bank.grid[0]))[0])
+    inside = [(c + 0.5) * bank.cell_size, (rows - 1 - r + 0.5) * bank.cell_size]
+    free_xy = np.asarray(bank.free_xy[0, :2], np.float64)
+    width, height = bank.size_m
+    key = jax.random.key(0)
+    for pose, goal, why in (
+        ([*inside, 0.0], free_xy[1], f"reset_to pose={[*inside, 0.0]}: a blocked cell"),
+        ([-0.5, 1.0, 0.0], free_xy[1], "reset_to pose=[-0.5, 1.0, 0.0]: off the"),
+        ([float("nan"), 1.0, 0.0], free_xy[1], "reset_to pose=[nan, 1.0, 0.0]: off the"),
+        ([*free_xy[0], 0.0], [width + 1, 1.0], f"reset_to goal=[{width + 1}, 1.0]: off the"),
+    ):
+        with pytest.raises(ValueError, match=re.escape(why)):
+            env.reset_to(key, params, np.array(pose), np.array(goal))
+    env.reset_to(key, params, np.array([*free_xy[0], 0.0]), free_xy[1])  # free: fine

@@ -66,6 +66,24 @@ def check_fields(config: Any) -> None:
                     )
 
 
+def first_blocked_cell(walls: np.ndarray, layout: Any, cells: Any) -> tuple[int, str] | None:
+    """``(flat index, why)`` of the first of ``cells`` (int[..., 2] (row, col), on the host)
+    that is off the grid, on a wall of its layout ``walls[layout]`` (bool[L, rows, cols];
+    ``layout`` broadcasts against ``cells[..., 0]``), or whose layout is not in ``walls``;
+    ``None`` when every cell is a free one."""
+    cells = np.asarray(cells).reshape(-1, 2)
+    layout = np.broadcast_to(np.asarray(layout), np.asarray(cells).shape[:1]).reshape(-1)
+    num, rows, cols = walls.shape
+    for i, ((r, c), m) in enumerate(zip(cells.tolist(), layout.tolist(), strict=True)):
+        if not 0 <= m < num:
+            return i, f"layout {m} is not in the bank's {num}"
+        if not (0 <= r < rows and 0 <= c < cols):
+            return i, f"off the {rows}x{cols} grid"
+        if walls[m, r, c]:
+            return i, f"a blocked cell (row {r}, col {c}) of layout {m}"
+    return None
+
+
 # ----------------------------------------------------------------------- distance fields
 def distance_field(walls: jax.Array, source: jax.Array) -> jax.Array:
     """BFS steps from ``source`` (row, col) to every cell; -1 for walls and unreachable."""

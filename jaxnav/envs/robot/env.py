@@ -87,8 +87,8 @@ import numpy as np
 from flax import struct
 
 from jaxnav import spaces
-from jaxnav.environment import Environment, EnvParams, EnvState
-from jaxnav.envs.maze_algorithms import check_fields
+from jaxnav.environment import Environment, EnvParams, EnvState, is_concrete
+from jaxnav.envs.maze_algorithms import check_fields, first_blocked_cell
 from jaxnav.envs.robot import generators, geometry, mazes
 
 ACTION_NAMES = ("forward", "backward", "turn_left", "turn_right")
@@ -526,6 +526,8 @@ class RobotNav(Environment[RobotState, RobotParams]):
         layout: jax.Array | int = 0,
     ) -> tuple[jax.Array, RobotState]:
         """Start at ``pose`` (x, y, heading) with ``goal`` (x, y) in bank maze ``layout``."""
+        if is_concrete(params, pose, goal, layout):  # under jit/vmap: check_reset_to first
+            self.check_reset_to(params, pose, goal, layout)
         pose = jnp.asarray(pose, jnp.float32)
         goal = jnp.asarray(goal, jnp.float32)
         layout = jnp.asarray(layout, jnp.int32)
@@ -596,6 +598,24 @@ class RobotNav(Environment[RobotState, RobotParams]):
         }
         reward = r_goal + r_collision + r_step + r_progress + r_clearance
         return self.get_obs(state, params), state, reward, at_goal | collided, info
+
+    def check_reset_to(self, params: RobotParams, pose: Any, goal: Any, layout: Any = 0) -> None:
+        bank = params.bank
+        rows = bank.grid.shape[1]
+        for name, points in (("pose", pose), ("goal", goal)):
+            points = np.asarray(points, np.float64)
+            xy = points[..., :2]
+            # the cell holding each point, unclipped: off the arena is off the grid
+            with np.errstate(invalid="ignore"):
+                col = np.where(np.isfinite(xy[..., 0]), np.floor(xy[..., 0] / bank.cell_size), -1)
+                row = np.where(
+                    np.isfinite(xy[..., 1]), rows - 1 - np.floor(xy[..., 1] / bank.cell_size), -1
+                )
+            cells = np.stack([row, col], axis=-1).clip(-1, 2**31 - 1).astype(np.int64)
+            bad = first_blocked_cell(np.asarray(bank.grid), layout, cells)
+            if bad is not None:
+                shown = points.reshape(-1, points.shape[-1])[bad[0]].tolist()
+                raise ValueError(f"reset_to {name}={shown}: {bad[1]}")
 
     def reset_to_args(self, state: RobotState) -> tuple[jax.Array, jax.Array, jax.Array]:
         """The robot's pose, the goal and the maze, as ``reset_to`` takes them."""
