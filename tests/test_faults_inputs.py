@@ -188,3 +188,39 @@ def test_robot_reset_to_refuses_a_pose_in_a_wall_or_off_the_arena():
         with pytest.raises(ValueError, match=re.escape(why)):
             env.reset_to(key, params, np.array(pose), np.array(goal))
     env.reset_to(key, params, np.array([*free_xy[0], 0.0]), free_xy[1])  # free: fine
+
+
+# ------------------------------------------------------------------ 7. signal while finishing
+def test_sigterm_during_the_final_evaluation_exits_143_and_resume_completes(
+    tmp_path, capsys, monkeypatch
+):
+    import os
+    import signal
+
+    from jaxnav import runner
+
+    tiny = [*TINY_FLAGS, "--total-timesteps", "64", "--eval-episodes", "2"]
+    ref = tmp_path / "ref"
+    assert train_main([*tiny, "--out", str(ref)]) == 0
+    evaluate = runner.evaluate_seeds
+
+    sent = []
+
+    def evaluate_then_sigterm(*args, **kwargs):
+        result = evaluate(*args, **kwargs)
+        if not sent:  # once: a second signal ends the process at once, by design
+            sent.append(os.kill(os.getpid(), signal.SIGTERM))  # train's handler records it
+        return result
+
+    monkeypatch.setattr(runner, "evaluate_seeds", evaluate_then_sigterm)
+    out = tmp_path / "run"
+    capsys.readouterr()
+    assert train_main([*tiny, "--out", str(out)]) == 128 + signal.SIGTERM
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "stopped by SIGTERM" in err and "--resume" in err, err
+    assert not out.exists() and (tmp_path / ".run.partial").is_dir()
+    monkeypatch.setattr(runner, "evaluate_seeds", evaluate)
+    assert train_main(["--resume", str(out)]) == 0
+    assert (out / "metrics.csv").read_text() == (ref / "metrics.csv").read_text()
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["trained"] == json.loads((ref / "summary.json").read_text())["trained"]
