@@ -42,14 +42,16 @@ def check_int(name: str, value: Any, lo: int, hi: int | None = None) -> None:
 # sums or squares of a value much beyond this (returns over an episode, squared distances)
 # overflow or lose all precision; no sane reward, speed or length comes near it
 MAX_FLOAT_FIELD = 1e6
+FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
-def check_fields(config: Any) -> None:
+def check_fields(config: Any, bound: float = MAX_FLOAT_FIELD) -> None:
     """``ValueError`` naming the first field of the dataclass ``config`` that is annotated
     ``bool`` and holds no bool (``2`` or ``"False"``: a shape the observation space does not
     have), or annotated ``float`` (alone, or in a tuple) and holds no number in
-    ``[-MAX_FLOAT_FIELD, MAX_FLOAT_FIELD]``. The configs' own checks run first and keep their
-    messages; this one covers every field, including those added later."""
+    ``[-bound, bound]``. The configs' own checks run first and keep their messages; this one
+    covers every field, including those added later. With ``bound=FLOAT32_MAX`` it refuses
+    only what float32 cannot hold, for configs whose checks of derived sizes come later."""
     for f in dataclasses.fields(config):
         # annotations are strings under ``from __future__ import annotations``
         kind = f.type if isinstance(f.type, str) else getattr(f.type, "__name__", "")
@@ -59,10 +61,9 @@ def check_fields(config: Any) -> None:
                 raise ValueError(f"{f.name}={v!r}: must be true or false")
         elif kind == "float" or (kind.startswith("tuple[float") and v is not None):
             for x in v if isinstance(v, tuple) else (v,):
-                if not is_number(x) or not math.isfinite(x) or abs(x) > MAX_FLOAT_FIELD:
+                if not is_number(x) or not math.isfinite(x) or abs(x) > bound:
                     raise ValueError(
-                        f"{f.name}={v!r}: must be a finite number of magnitude at most "
-                        f"{MAX_FLOAT_FIELD:g}"
+                        f"{f.name}={v!r}: must be a finite number of magnitude at most {bound:g}"
                     )
 
 

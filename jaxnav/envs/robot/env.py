@@ -88,7 +88,7 @@ from flax import struct
 
 from jaxnav import spaces
 from jaxnav.environment import Environment, EnvParams, EnvState, is_concrete
-from jaxnav.envs.maze_algorithms import check_fields, first_blocked_cell
+from jaxnav.envs.maze_algorithms import FLOAT32_MAX, check_fields, first_blocked_cell
 from jaxnav.envs.robot import generators, geometry, mazes
 
 ACTION_NAMES = ("forward", "backward", "turn_left", "turn_right")
@@ -242,15 +242,16 @@ class RobotConfig:
             if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v):
                 raise ValueError(f"{name}={v!r}: must be a finite number")
         self._validate_randomization()
-        check_fields(self)
+        # float32 overflow first; the sane bound last, after the messages of derived sizes
+        check_fields(self, bound=FLOAT32_MAX)
         travel = self.max_speed * self.dt / self.mjx_substeps
         if self.backend == "mjx" and travel >= self.min_radius:
             # contacts are seen at substep boundaries: a longer substep could carry the
             # robot's centre past a wall's face (or through a thin wall) before MJX sees it
             raise ValueError(
                 f"mjx_substeps={self.mjx_substeps}: a physics substep would move the robot "
-                f"{travel:g} m at speed={self.max_speed:g}, not less than its radius "
-                f"{self.min_radius}; use more substeps"
+                f"{travel:g} m at speed={self.max_speed:g}, dt={self.dt:g}, not less than its "
+                f"radius {self.min_radius}; use more substeps"
             )
         if (self.maze == "file") != (self.maze_file is not None):
             raise ValueError(
@@ -294,6 +295,7 @@ class RobotConfig:
                     f"speed={self.max_speed:g}, dt={self.dt}: one control step would cross more "
                     f"than {MAX_STEP_CELLS} cells of the {maze.name} maze"
                 )
+        check_fields(self)
 
     def _validate_randomization(self) -> None:
         for name, hi in (
