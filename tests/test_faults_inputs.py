@@ -229,3 +229,37 @@ def test_sigterm_during_the_final_evaluation_exits_143_and_resume_completes(
     summary = json.loads((out / "summary.json").read_text())
     assert summary["trained"] == json.loads((ref / "summary.json").read_text())["trained"]
 
+
+# ------------------------------------------------------------------ 8. the programs cache
+class Planted:
+    """A pickle that, when loaded, creates a file: what a hostile cache entry could do."""
+
+    def __init__(self, marker: Path) -> None:
+        self.marker = marker
+
+    def __reduce__(self):
+        return (Path.touch, (self.marker,))
+
+
+def test_a_cache_directory_others_can_write_is_not_used_and_nothing_is_unpickled(
+    tmp_path, capsys, monkeypatch
+):
+    import os
+    import pickle
+
+    flags = [*TINY_FLAGS, "--total-timesteps", "64", "--eval-episodes", "2"]
+    root = tmp_path / "cache"
+    monkeypatch.setenv("JAXNAV_CACHE_DIR", str(root))
+    assert train_main([*flags, "--out", str(tmp_path / "a")]) == 0
+    (entry,) = list((root / "programs").iterdir())
+    marker = tmp_path / "code-ran"
+    (entry / "programs.pkl").write_bytes(pickle.dumps(Planted(marker)))
+    os.chmod(root, 0o777)  # e.g. a shared directory: anyone could have planted that entry
+    capsys.readouterr()
+    assert train_main([*flags, "--out", str(tmp_path / "b")]) == 0
+    out, err = capsys.readouterr()
+    assert not marker.exists()
+    assert "from the cache" not in out
+    (warning,) = [line for line in err.splitlines() if "JAXNAV_CACHE_DIR" in line]
+    assert f"{root} is writable by other users (mode 777)" in warning, warning
+    assert "not used" in warning
