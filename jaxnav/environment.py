@@ -167,6 +167,15 @@ class Environment(Generic[StateT, ParamsT]):
         stands: for the state of a fresh reset, that very episode."""
         raise NotImplementedError
 
+    def check_reset_to(
+        self, params: ParamsT, start: Any, goal: Any, layout: Any = 0
+    ) -> None:
+        """``ValueError`` naming the first start or goal of ``reset_to``'s arguments (one
+        episode's or a batch's, concrete) that is off the map or in a blocked cell. ``reset_to``
+        checks concrete arguments itself; under ``jit``/``vmap`` it cannot (it must stay a
+        traceable function), so fixed suites call this on the host first."""
+        raise NotImplementedError
+
     def sensor_ranges(self, state: StateT, params: ParamsT) -> jax.Array:
         """float32[R]: what each of the agent's R range sensors reads at ``state``, in the
         units of ``scene`` (R = 0, the default: no sensors to draw)."""
@@ -306,3 +315,8 @@ def _check_action(action: np.ndarray, n: int) -> None:
     bad = np.asarray(action)[(np.asarray(action) < 0) | (np.asarray(action) >= n)]
     if bad.size:
         raise ValueError(f"action {int(bad.ravel()[0])}: outside [0, {n})")
+
+
+def is_concrete(*values: Any) -> bool:
+    """Whether every array in ``values`` holds values (no ``jit``/``vmap`` tracer)."""
+    return not any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(values))

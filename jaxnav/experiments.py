@@ -179,6 +179,8 @@ def draw_suite(
 def start_suite(env: Environment, params: EnvParams, suite: dict[str, jax.Array]):
     """The suite's first observations and states, through ``env.reset_to``."""
     key = jax.random.key(0)  # reset_to is deterministic
+    # vmapped, reset_to cannot check its arguments: a start in a wall is refused here
+    env.check_reset_to(params, suite["start"], suite["goal"], suite["layout"])
     return jax.vmap(env.reset_to, in_axes=(None, None, 0, 0, 0))(
         key, params, suite["start"], suite["goal"], suite["layout"]
     )

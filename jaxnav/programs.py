@@ -18,6 +18,8 @@ import hashlib
 import json
 import os
 import pickle
+import stat
+import sys
 import tempfile
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
@@ -49,11 +51,46 @@ class TrainingPrograms:
 def enable_compilation_cache() -> None:
     """Persist compiled programs across runs (``JAXNAV_CACHE_DIR``, default
     ``~/.cache/jaxnav/xla``; set it to an empty string to disable): a second run of the same
-    config skips XLA compilation. Every command line turns it on."""
+    config skips XLA compilation. Every command line turns it on.
+
+    Only the user running jaxnav (and root) may write there: what the cache holds is run (XLA
+    executables, and programs unpickled by ``_load``). A directory that others can write is
+    refused with a one-line warning, and the run goes on without the cache."""
     path = os.environ.get("JAXNAV_CACHE_DIR", str(Path.home() / ".cache" / "jaxnav" / "xla"))
-    if path:
+    unsafe = path and writable_by_others(Path(path))
+    if unsafe:
+        print(
+            f"warning: JAXNAV_CACHE_DIR {path}: {unsafe}; the compilation cache is not used",
+            file=sys.stderr,
+            flush=True,
+        )
+        jax.config.update("jax_compilation_cache_dir", None)  # off, also if on before
+    elif path:
         jax.config.update("jax_compilation_cache_dir", path)
         jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+
+
+def writable_by_others(path: Path) -> str:
+    """Why someone other than this user (or root) could change what ``path`` holds: it, or a
+    directory above it, is owned by another user or writable by the group or others (without
+    the sticky bit, which keeps others from renaming our entries, as in /tmp); ``""`` if no
+    one can. A missing ``path`` is judged by the directories that exist above it.
+
+    Why a mode check rather than a format that cannot run code: the cache's main content is
+    XLA's persistent cache of compiled executables, which run as they are loaded whatever
+    format our own entries used; so the directory itself must be writable by this user
+    alone."""
+    me = os.geteuid()
+    for p in [path.absolute(), *path.absolute().parents]:
+        try:
+            st = p.stat()
+        except FileNotFoundError:
+            continue
+        if st.st_uid not in (me, 0):
+            return f"{p} is owned by another user (uid {st.st_uid})"
+        if st.st_mode & (stat.S_IWGRP | stat.S_IWOTH) and not st.st_mode & stat.S_ISVTX:
+            return f"{p} is writable by other users (mode {stat.S_IMODE(st.st_mode):o})"
+    return ""
 
 
 def cache_directory() -> Path | None:
@@ -189,8 +226,8 @@ def _load(directory: Path | None) -> dict[str, Any] | None:
     """The stored programs (``_from_blob``), or ``None`` if there are none or they do not
     read back (a damaged or foreign entry is traced again and replaced)."""
     path = None if directory is None else directory / "programs.pkl"
-    if path is None or not path.exists():
-        return None
+    if path is None or not path.exists() or writable_by_others(path):
+        return None  # a file others could have written is never unpickled: traced again
     try:
         with open(path, "rb") as f:
             return _from_blob(pickle.load(f))

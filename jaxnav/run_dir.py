@@ -232,10 +232,33 @@ def save_params(run: Path, params: Any) -> None:
 
 
 def load_params(run: Path, like: Any) -> Any:
-    """Parameters saved by ``save_params``; ``like`` gives their structure (abstract is fine)."""
+    """Parameters saved by ``save_params``; ``like`` gives their structure (abstract is fine).
+    ``ValueError`` when the saved arrays are not those ``like`` describes: orbax restores a
+    (16,) bias into a (32,) one without a word, so the names, shapes and dtypes are compared
+    first (a config.json edited after training, e.g. its hidden_sizes)."""
     abstract = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype), like)
+    path = (run / "params").absolute()
     with ocp.StandardCheckpointer(multiprocessing_options=this_process_only()) as ckpt:
-        return ckpt.restore((run / "params").absolute(), abstract)
+        saved = ckpt.metadata(path).item_metadata
+        _check_saved_params(run, saved, abstract)
+        return ckpt.restore(path, abstract)
+
+
+def _check_saved_params(run: Path, saved: Any, abstract: Any) -> None:
+    def arrays(tree: Any) -> dict[str, tuple[tuple[int, ...], str]]:
+        flat = jax.tree_util.tree_flatten_with_path(tree)[0]
+        return {jax.tree_util.keystr(k): (tuple(v.shape), str(v.dtype)) for k, v in flat}
+
+    have, want = arrays(saved), arrays(abstract)
+    for name in sorted(have.keys() | want.keys()):
+        if have.get(name) != want.get(name):
+            shown = {n: "absent" if a is None else f"{a[1]}{list(a[0])}" for n, a in (
+                ("saved", have.get(name)), ("config", want.get(name))
+            )}  # fmt: skip
+            raise ValueError(
+                f"{run}: the run's parameters do not match its config.json ({name}: saved "
+                f"{shown['saved']}, the config gives {shown['config']}); was config.json edited?"
+            )
 
 
 def seeds_of(config: TrainConfig) -> list[int]:

@@ -208,6 +208,12 @@ def train_seeds(
     return state, metrics, compile_s, train_s
 
 
+def _stop_if_signalled(signals: Sequence[int], steps: int) -> None:
+    # this process's own signals: finishing runs on the primary alone, so no collective here
+    if signals:
+        raise Interrupted(steps, signals[0])
+
+
 def _warn(message: str) -> None:
     print_primary(f"warning: {message}", file=sys.stderr, flush=True)
 
@@ -247,10 +253,15 @@ def finish_run(
     partial: Path,
     out: Path,
     times: tuple[float, float, float],
+    signals: Sequence[int] = (),
 ) -> None:
     """Evaluate the trained seeds, complete the run in ``partial`` and rename it to ``out``;
-    ``times`` are the compile and train seconds and the run's start (``perf_counter``)."""
+    ``times`` are the compile and train seconds and the run's start (``perf_counter``).
+    ``Interrupted`` when ``signals`` (``Saving.signals``) has one before or after the
+    evaluation, which can take minutes: nothing is written, and ``--resume`` evaluates again
+    from the final checkpoint."""
     config = trainer.config
+    _stop_if_signalled(signals, config.num_logs * config.steps_per_log)
     compile_s, train_s, t_start = times
     # wall-clock timing apart from metrics.csv, which is bitwise reproducible
     sps = progress.steps_per_second(metrics["env_steps"][0])
@@ -260,6 +271,7 @@ def finish_run(
     trained = evaluate_seeds(trainer, params, config.eval_episodes, seed=10_000)
     rand = evaluate_seeds(trainer, params, config.eval_episodes, 10_000, "random")
     eval_s = time.perf_counter() - t0
+    _stop_if_signalled(signals, config.num_logs * config.steps_per_log)
 
     # complete the hidden sibling, then rename: a crash never leaves half a run at ``out``
     seeds = run_dir.seeds_of(config)

@@ -91,7 +91,9 @@ def test_inactive_wall_slots_do_not_collide_wherever_they_lie():
         half_size=walls.half_size.at[maze, slot].set(jnp.array([0.1, 0.1])),
     )
     ghost = params.replace(bank=params.bank.replace(walls=moved))
-    _, s = env.reset_to(KEY, params, jnp.array([x, y, 0.0]), jnp.array([x, y]) + 5.0, maze)
+    free = np.asarray(params.bank.free_xy[maze, : int(params.bank.num_free[maze])])
+    far = free[np.argmax(np.hypot(free[:, 0] - x, free[:, 1] - y))]  # a goal out of reach
+    _, s = env.reset_to(KEY, params, jnp.array([x, y, 0.0]), jnp.asarray(far), maze)
     _, s_ghost, _, term, info = step_env(KEY, s, FORWARD, ghost)
     assert not bool(term) and not bool(info["collision"])
     _, s_plain, _, _, _ = step_env(KEY, s, FORWARD, params)

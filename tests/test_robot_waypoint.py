@@ -197,7 +197,9 @@ def test_waypoint_cells_zero_leaves_observations_bit_for_bit_unchanged(env_id):
     default, params = jaxnav.make(env_id, backend="kinematic")
     off, off_params = jaxnav.make(env_id, backend="kinematic", waypoint_cells=0)
     assert default.config.waypoint_cells == 0 and off.frame_size == default.frame_size
-    pose, goal = jnp.array([1.25, 0.75, 0.4]), jnp.array([8.25, 8.75])
+    free = np.asarray(params.bank.free_xy[0, : int(params.bank.num_free[0])])
+    far = free[np.argmax(np.hypot(*(free - free[0]).T))]  # free cells: reset_to refuses walls
+    pose, goal = jnp.array([*free[0], 0.4]), jnp.asarray(far)
     a, sa = default.reset_to(KEY, params, pose, goal)
     b, sb = off.reset_to(KEY, off_params, pose, goal)
     np.testing.assert_array_equal(np.asarray(a), np.asarray(b))

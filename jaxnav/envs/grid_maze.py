@@ -47,11 +47,13 @@ import numpy as np
 from flax import struct
 
 from jaxnav import spaces
-from jaxnav.environment import Environment, EnvParams, EnvState
+from jaxnav.environment import Environment, EnvParams, EnvState, is_concrete
 from jaxnav.envs.maze_algorithms import (
     bank_distances,
+    check_fields,
     check_int,
     fill_pockets,
+    first_blocked_cell,
     is_number,
     shortest_path_length,
 )
@@ -109,6 +111,7 @@ class GridMazeConfig:
             v = getattr(self, name)
             if not is_number(v) or not np.isfinite(v):
                 raise ValueError(f"{name}={v!r}: must be a finite number")
+        check_fields(self)
         # the bank holds a BFS distance field (int16 per cell) for every goal of every layout
         cells = self.size * self.size
         layouts, goals = (
@@ -121,9 +124,21 @@ class GridMazeConfig:
                 f"{self.goals_per_layout}: the layout bank's distance fields would take "
                 f"{gib:.1f} GiB (at most {MAX_BANK_GIB})"
             )
+        # building the bank holds more per cell than its distance fields (random draws, sort
+        # orders, cell lists): ~53 bytes per layout cell measured with one goal per layout
+        build = layouts * cells * (BANK_BUILD_BYTES_PER_CELL + 2 * goals) / 2**30
+        if build > MAX_BANK_BUILD_GIB:
+            raise ValueError(
+                f"size={self.size}, num_layouts={self.num_layouts}, goals_per_layout="
+                f"{self.goals_per_layout}: building the layout bank would take about "
+                f"{build:.1f} GiB of memory (at most {MAX_BANK_BUILD_GIB}); use fewer or "
+                "smaller layouts"
+            )
 
 
 MAX_BANK_GIB = 2
+BANK_BUILD_BYTES_PER_CELL = 56
+MAX_BANK_BUILD_GIB = 8
 
 
 def default_config() -> GridMazeConfig:
@@ -345,12 +360,24 @@ class GridMaze(Environment[GridMazeState, GridMazeParams]):
         """Start an episode at a given start and goal cell (row, col) in bank layout ``layout``,
         for fixed test suites. The shortest path is computed by BFS (-1 if unreachable)."""
         del key  # deterministic; kept for a uniform signature
+        if is_concrete(params, start, goal, layout):  # under jit/vmap: check_reset_to first
+            self.check_reset_to(params, start, goal, layout)
         start = jnp.asarray(start, jnp.int32)
         goal = jnp.asarray(goal, jnp.int32)
         layout = jnp.asarray(layout, jnp.int32)
         obstacles = params.bank.obstacles[layout]
         shortest = shortest_path_length(obstacles, start, goal)
         return self._start(start, goal, layout, shortest, params)
+
+    def check_reset_to(
+        self, params: GridMazeParams, start: Any, goal: Any, layout: Any = 0
+    ) -> None:
+        walls = np.asarray(params.bank.obstacles)
+        for name, cells in (("start", start), ("goal", goal)):
+            bad = first_blocked_cell(walls, layout, cells)
+            if bad is not None:
+                cell = np.asarray(cells).reshape(-1, 2)[bad[0]].tolist()
+                raise ValueError(f"reset_to {name}={cell}: {bad[1]}")
 
     def _start(self, start, goal, layout, shortest, params) -> tuple[jax.Array, GridMazeState]:
         state = GridMazeState(

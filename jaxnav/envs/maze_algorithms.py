@@ -9,6 +9,8 @@ free cells are neighbours when they share a side (4-connectivity).
 
 from __future__ import annotations
 
+import dataclasses
+import math
 from typing import Any
 
 import jax
@@ -34,6 +36,53 @@ def check_int(name: str, value: Any, lo: int, hi: int | None = None) -> None:
             raise ValueError(f"{name}={value!r}: must be an integer >= {lo}")
     elif not ok or not lo <= value <= hi:
         raise ValueError(f"{name}={value!r}: must be an integer in [{lo}, {hi}]")
+
+
+# Every float of an env config becomes float32 in the jitted step, where 1e39 is inf and
+# sums or squares of a value much beyond this (returns over an episode, squared distances)
+# overflow or lose all precision; no sane reward, speed or length comes near it
+MAX_FLOAT_FIELD = 1e6
+FLOAT32_MAX = float(np.finfo(np.float32).max)
+
+
+def check_fields(config: Any, bound: float = MAX_FLOAT_FIELD) -> None:
+    """``ValueError`` naming the first field of the dataclass ``config`` that is annotated
+    ``bool`` and holds no bool (``2`` or ``"False"``: a shape the observation space does not
+    have), or annotated ``float`` (alone, or in a tuple) and holds no number in
+    ``[-bound, bound]``. The configs' own checks run first and keep their messages; this one
+    covers every field, including those added later. With ``bound=FLOAT32_MAX`` it refuses
+    only what float32 cannot hold, for configs whose checks of derived sizes come later."""
+    for f in dataclasses.fields(config):
+        # annotations are strings under ``from __future__ import annotations``
+        kind = f.type if isinstance(f.type, str) else getattr(f.type, "__name__", "")
+        v = getattr(config, f.name)
+        if kind == "bool":
+            if not isinstance(v, (bool, np.bool_)):
+                raise ValueError(f"{f.name}={v!r}: must be true or false")
+        elif kind == "float" or (kind.startswith("tuple[float") and v is not None):
+            for x in v if isinstance(v, tuple) else (v,):
+                if not is_number(x) or not math.isfinite(x) or abs(x) > bound:
+                    raise ValueError(
+                        f"{f.name}={v!r}: must be a finite number of magnitude at most {bound:g}"
+                    )
+
+
+def first_blocked_cell(walls: np.ndarray, layout: Any, cells: Any) -> tuple[int, str] | None:
+    """``(flat index, why)`` of the first of ``cells`` (int[..., 2] (row, col), on the host)
+    that is off the grid, on a wall of its layout ``walls[layout]`` (bool[L, rows, cols];
+    ``layout`` broadcasts against ``cells[..., 0]``), or whose layout is not in ``walls``;
+    ``None`` when every cell is a free one."""
+    cells = np.asarray(cells).reshape(-1, 2)
+    layout = np.broadcast_to(np.asarray(layout), np.asarray(cells).shape[:1]).reshape(-1)
+    num, rows, cols = walls.shape
+    for i, ((r, c), m) in enumerate(zip(cells.tolist(), layout.tolist(), strict=True)):
+        if not 0 <= m < num:
+            return i, f"layout {m} is not in the bank's {num}"
+        if not (0 <= r < rows and 0 <= c < cols):
+            return i, f"off the {rows}x{cols} grid"
+        if walls[m, r, c]:
+            return i, f"a blocked cell (row {r}, col {c}) of layout {m}"
+    return None
 
 
 # ----------------------------------------------------------------------- distance fields

@@ -129,9 +129,9 @@ class Trainer:
         return self.obs_size, self.network.onehot_sizes
 
     def _check_memory(self) -> None:
-        """``ValueError`` for sizes whose replay buffers (PQN: rollouts) and networks (params,
-        target, two Adam moments) cannot fit in this machine's memory: refused before
-        allocating."""
+        """``ValueError`` for sizes whose replay buffers (PQN: rollouts), networks (params,
+        target, two Adam moments) and per-interval metrics cannot fit in this machine's
+        memory: refused before allocating, and before a run directory is created."""
         c = self.config
         first = dqn.input_size(*self.network_input)
         sizes = (first, *c.hidden_sizes, self.env.num_actions + 1)
@@ -139,8 +139,18 @@ class Trainer:
         obs_bytes = self.obs_size * jnp.dtype(self.env.observation_space().dtype).itemsize
         rows = c.rollout_length if c.algo == "pqn" else c.buffer_rows
         replay = rows * c.num_envs * (2 * obs_bytes + 4 * 4)
-        need = c.num_seeds * (replay + 4 * 4 * weights)
+        # the host keeps every interval's metrics, [seeds, logs] per name (4-byte values),
+        # and a copy of them while a checkpoint is written
+        metrics = c.num_seeds * c.num_logs * len(METRIC_NAMES) * 4 * 2
+        need = c.num_seeds * (replay + 4 * 4 * weights) + metrics
         have = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+        if need > have and metrics > need // 2:
+            raise ValueError(
+                f"total_timesteps={c.total_timesteps}, log_interval={c.log_interval}, "
+                f"num_envs={c.num_envs}, num_seeds={c.num_seeds}: {c.num_logs:,} logging "
+                f"intervals' metrics need about {metrics / 2**30:.1f} GiB, more than this "
+                f"machine's {have / 2**30:.1f} GiB; log less often (a larger log_interval)"
+            )
         if need > have:
             # what sizes the transitions kept: PQN's rollout, DQN's replay buffer
             kept = f"buffer_size={c.buffer_size}"

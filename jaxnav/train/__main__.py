@@ -319,14 +319,7 @@ def _main(argv: Sequence[str] | None, locks: list[run_dir.RunLock]) -> int:
                 trainer, run_dir.seed_keys(config), progress, saving
             )
         except runner.Interrupted as e:
-            steps, signum = e.args  # signum: another host's, when this one got none
-            name = signal.Signals(signum).name
-            print(
-                f"{prog}: stopped by {name} at env step {steps:,} (checkpoint saved); "
-                f"continue with: {resume}",
-                file=sys.stderr,
-            )
-            return 128 + signum
+            return stopped(prog, e, resume)
         except runner.Diverged as e:
             print(f"{prog}: diverged: {e}", file=sys.stderr)
             return EXIT_DIVERGED
@@ -339,17 +332,33 @@ def _main(argv: Sequence[str] | None, locks: list[run_dir.RunLock]) -> int:
         finally:  # event files complete before the run directory is renamed
             for sink in sinks:
                 sink.close()
-        # a signal from here on is let be: the trained run is complete in seconds
+        # a signal during the final evaluation stops it: --resume evaluates again
         params = sharding.to_host(state.params)
         if runner.is_primary():
             times = (compile_s, train_s, t_start)
             try:
-                runner.finish_run(trainer, params, metrics, progress, partial, out, times)
+                runner.finish_run(
+                    trainer, params, metrics, progress, partial, out, times, saving.signals
+                )
+            except runner.Interrupted as e:
+                return stopped(prog, e, resume)
             except ValueError as e:  # --out became something the run cannot be renamed to
                 return fail(prog, str(e))
             except OSError as e:
                 return runner.disk_full(prog, e, resume)
     return 0
+
+
+def stopped(prog: str, e: runner.Interrupted, resume: str) -> int:
+    """Report a stop by a signal in one line; the exit code is 128 + the signal's number."""
+    steps, signum = e.args  # signum: another host's, when this one got none
+    name = signal.Signals(signum).name
+    print(
+        f"{prog}: stopped by {name} at env step {steps:,} (checkpoint saved); "
+        f"continue with: {resume}",
+        file=sys.stderr,
+    )
+    return 128 + signum
 
 
 def resumable_run(args: argparse.Namespace, argv: list[str]) -> tuple[Path, Path, TrainConfig]:

@@ -87,7 +87,8 @@ import numpy as np
 from flax import struct
 
 from jaxnav import spaces
-from jaxnav.environment import Environment, EnvParams, EnvState
+from jaxnav.environment import Environment, EnvParams, EnvState, is_concrete
+from jaxnav.envs.maze_algorithms import FLOAT32_MAX, check_fields, first_blocked_cell
 from jaxnav.envs.robot import generators, geometry, mazes
 
 ACTION_NAMES = ("forward", "backward", "turn_left", "turn_right")
@@ -235,22 +236,22 @@ class RobotConfig:
             raise ValueError(
                 f"laser_fov={self.laser_fov!r}: must be a number of degrees in (0, 360]"
             )
-        if not isinstance(self.obs_absolute, (bool, np.bool_)):
-            raise ValueError(f"obs_absolute={self.obs_absolute!r}: must be True or False")
         generators.check_families(self.families)
         for name in (f.name for f in dataclasses.fields(self) if "reward" in f.name):
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v):
                 raise ValueError(f"{name}={v!r}: must be a finite number")
         self._validate_randomization()
+        # float32 overflow first; the sane bound last, after the messages of derived sizes
+        check_fields(self, bound=FLOAT32_MAX)
         travel = self.max_speed * self.dt / self.mjx_substeps
         if self.backend == "mjx" and travel >= self.min_radius:
             # contacts are seen at substep boundaries: a longer substep could carry the
             # robot's centre past a wall's face (or through a thin wall) before MJX sees it
             raise ValueError(
                 f"mjx_substeps={self.mjx_substeps}: a physics substep would move the robot "
-                f"{travel:g} m at speed={self.max_speed:g}, not less than its radius "
-                f"{self.min_radius}; use more substeps"
+                f"{travel:g} m at speed={self.max_speed:g}, dt={self.dt:g}, not less than its "
+                f"radius {self.min_radius}; use more substeps"
             )
         if (self.maze == "file") != (self.maze_file is not None):
             raise ValueError(
@@ -294,6 +295,7 @@ class RobotConfig:
                     f"speed={self.max_speed:g}, dt={self.dt}: one control step would cross more "
                     f"than {MAX_STEP_CELLS} cells of the {maze.name} maze"
                 )
+        check_fields(self)
 
     def _validate_randomization(self) -> None:
         for name, hi in (
@@ -526,6 +528,8 @@ class RobotNav(Environment[RobotState, RobotParams]):
         layout: jax.Array | int = 0,
     ) -> tuple[jax.Array, RobotState]:
         """Start at ``pose`` (x, y, heading) with ``goal`` (x, y) in bank maze ``layout``."""
+        if is_concrete(params, pose, goal, layout):  # under jit/vmap: check_reset_to first
+            self.check_reset_to(params, pose, goal, layout)
         pose = jnp.asarray(pose, jnp.float32)
         goal = jnp.asarray(goal, jnp.float32)
         layout = jnp.asarray(layout, jnp.int32)
@@ -595,6 +599,24 @@ class RobotNav(Environment[RobotState, RobotParams]):
         }
         reward = r_goal + r_collision + r_step + r_progress + r_clearance
         return self.get_obs(state, params), state, reward, at_goal | collided, info
+
+    def check_reset_to(self, params: RobotParams, pose: Any, goal: Any, layout: Any = 0) -> None:
+        bank = params.bank
+        rows = bank.grid.shape[1]
+        for name, points in (("pose", pose), ("goal", goal)):
+            points = np.asarray(points, np.float64)
+            xy = points[..., :2]
+            # the cell holding each point, unclipped: off the arena is off the grid
+            with np.errstate(invalid="ignore"):
+                col = np.where(np.isfinite(xy[..., 0]), np.floor(xy[..., 0] / bank.cell_size), -1)
+                row = np.where(
+                    np.isfinite(xy[..., 1]), rows - 1 - np.floor(xy[..., 1] / bank.cell_size), -1
+                )
+            cells = np.stack([row, col], axis=-1).clip(-1, 2**31 - 1).astype(np.int64)
+            bad = first_blocked_cell(np.asarray(bank.grid), layout, cells)
+            if bad is not None:
+                shown = points.reshape(-1, points.shape[-1])[bad[0]].tolist()
+                raise ValueError(f"reset_to {name}={shown}: {bad[1]}")
 
     def reset_to_args(self, state: RobotState) -> tuple[jax.Array, jax.Array, jax.Array]:
         """The robot's pose, the goal and the maze, as ``reset_to`` takes them."""

@@ -146,6 +146,18 @@ class MazeBank:
 
 
 # ------------------------------------------------------------------------------- maze
+# A cell's side in metres. The float32 step squares distances (collisions, lasers): a 1e20 m
+# cell overflows them to inf and NaN; a micrometre cell leaves no robot radius MJX can simulate
+CELL_SIZE_RANGE = (0.01, 100.0)
+
+
+def check_cell_size(cell_size: float, prefix: str = "") -> None:
+    """``ValueError`` naming ``cell_size`` unless it lies in ``CELL_SIZE_RANGE`` (metres)."""
+    lo, hi = CELL_SIZE_RANGE
+    if not lo <= cell_size <= hi:
+        raise ValueError(f"{prefix}cell_size={cell_size!r}: must be in [{lo:g}, {hi:g}] metres")
+
+
 @dataclasses.dataclass(frozen=True, eq=False)  # eq=False: arrays have no truth value
 class Maze:
     """A maze layout on the host. ``grid`` is read-only bool (rows, cols), True = wall.
@@ -170,6 +182,7 @@ class Maze:
         cs = self.cell_size
         if not is_number(cs) or not math.isfinite(cs) or cs <= 0:
             raise ValueError(f"{self.name}: cell_size={cs!r}: must be a positive number (metres)")
+        check_cell_size(cs, f"{self.name}: ")
         object.__setattr__(self, "cell_size", float(cs))
         for label in ("start", "goal"):
             cell = getattr(self, label)
@@ -505,6 +518,9 @@ def _parse_cell_size(value: str, fail: Any, line: int, col: int) -> float:
         raise fail(f"cell_size {value!r} is not a number (metres)", line, col) from None
     if not math.isfinite(v) or v <= 0:
         raise fail(f"cell_size {value!r} must be a positive number of metres", line, col)
+    lo, hi = CELL_SIZE_RANGE
+    if not lo <= v <= hi:
+        raise fail(f"cell_size {value!r} must be in [{lo:g}, {hi:g}] metres", line, col)
     return v
 
 
@@ -595,6 +611,7 @@ def random_maze_bank(
         raise ValueError(f"rows={rows}, cols={cols}: a maze needs at least 2 cells")
     if not is_number(cell_size) or not math.isfinite(cell_size) or cell_size <= 0:
         raise ValueError(f"cell_size={cell_size!r}: must be a positive number (metres)")
+    check_cell_size(cell_size)
     if not is_number(wall_density) or not 0.0 <= wall_density < 1.0:
         raise ValueError(f"wall_density={wall_density!r}: must be a number in [0, 1)")
     if num_slots is not None:

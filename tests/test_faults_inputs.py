@@ -1,0 +1,265 @@
+"""Fault injection, round two: hostile values that used to pass validation and fail later (NaN
+observations, silent float32 overflow, shape tracebacks, memory errors after ``.partial``,
+flax tracebacks, starts inside walls, a wrong exit code, a cache that runs code). Each ends in
+one line naming the value (exit 2 for the commands). Tiny configs."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import re
+import shutil
+from pathlib import Path
+
+import pytest
+from conftest import TINY_FLAGS  # pytest puts tests/ on sys.path
+
+import jaxnav
+from jaxnav import registration
+from jaxnav.envs.robot import mazes
+from jaxnav.train.__main__ import main as train_main
+
+ROBOT = [a for a in TINY_FLAGS if a not in ("--env-arg", "size=5")]  # robot envs have no size
+
+
+def one_line_error(capsys, code: int, got: int) -> str:
+    assert got == code
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "Traceback" not in err, err
+    return err
+
+
+# ------------------------------------------------------------------ 1. physical sizes
+@pytest.mark.parametrize("cell_size", ["1e20", "1e-9"])
+def test_maze_file_cell_size_out_of_range_is_one_line(cell_size, tmp_path, capsys):
+    maze = tmp_path / "maze.txt"
+    maze.write_text(f"cell_size: {cell_size}\nS...\n.##.\n...G\n")
+    out = tmp_path / "r"
+    argv = [*ROBOT, "--env", "RobotMaze-v0", "--maze-file", str(maze), "--out", str(out)]
+    err = one_line_error(capsys, 2, train_main(argv))
+    assert f"cell_size {cell_size!r}" in err and "metres" in err, err
+    assert not out.exists() and not (tmp_path / ".r.partial").exists()
+
+
+@pytest.mark.parametrize("cell_size", [1e20, 1e-9])
+def test_maze_and_bank_cell_size_out_of_range_is_refused(cell_size):
+    grid = [[False, False], [False, False]]
+    want = re.escape(f"cell_size={cell_size!r}: must be in [0.01, 100] metres")
+    with pytest.raises(ValueError, match=want):
+        mazes.Maze(grid, cell_size)
+    with pytest.raises(ValueError, match=re.escape(f"cell_size={cell_size!r}")):
+        mazes.random_maze_bank(1, rows=4, cols=4, cell_size=cell_size)
+
+
+# ------------------------------------------------------------------ 2, 3. every float, every bool
+def typed_fields(kind: str) -> list[tuple[str, str]]:
+    """(env id, field) for every field of the grid and robot configs annotated ``kind``."""
+    return [
+        (env_id, f.name)
+        for env_id in ("GridMaze-v0", "RobotSimple-v0")
+        for f in dataclasses.fields(registration.env_config(env_id))
+        if f.type == kind
+    ]
+
+
+FLOAT_FIELDS = typed_fields("float") + [("RobotSimple-v0", "speed_range")]
+
+
+@pytest.mark.parametrize("env_id,name", FLOAT_FIELDS)
+@pytest.mark.parametrize("value", [1e39, -1e39, 1e7])
+def test_every_float_field_beyond_float32_or_a_sane_bound_is_refused(env_id, name, value):
+    config = registration.env_config(env_id)
+    bad = (1.0, value) if name.endswith("_range") else value
+    with pytest.raises(ValueError) as info:
+        dataclasses.replace(config, **{name: bad}).validate()
+    # the field's own check or check_fields; a derived size's (speed_range: the top speed)
+    # names it in its own format
+    shown = {f"{name}={bad!r}", f"{name}={bad}", f"{name.removesuffix('_range')}={value:g}"}
+    assert any(s in str(info.value) for s in shown) and "\n" not in str(info.value), info.value
+
+
+@pytest.mark.parametrize("env_id,name", typed_fields("bool"))
+@pytest.mark.parametrize("value", [2, 1, 0, "False", None])
+def test_every_bool_field_refuses_what_is_not_a_bool(env_id, name, value):
+    config = registration.env_config(env_id)  # built directly: config.json, Python callers
+    with pytest.raises(ValueError, match=re.escape(f"{name}={value!r}: must be true or false")):
+        dataclasses.replace(config, **{name: value}).validate()
+
+
+@pytest.mark.parametrize(
+    "arg", ["turn_speed=1e39", "goal_reward=1e39", "obs_proximity=2", "laser_range=1e30"]
+)
+def test_float32_overflow_and_int_bools_on_the_command_line_are_one_line(arg, tmp_path, capsys):
+    out = tmp_path / "r"
+    argv = [*ROBOT, "--env", "RobotSimple-v0", "--env-arg", arg, "--out", str(out)]
+    err = one_line_error(capsys, 2, train_main(argv))
+    name, value = arg.split("=")
+    assert f"{name}={float(value) if 'e' in value else int(value)!r}" in err, err
+    assert not out.exists() and not (tmp_path / ".r.partial").exists()
+    assert len(FLOAT_FIELDS) > 20 and jaxnav.make("RobotSimple-v0", goal_reward=1e6)  # the bound
+
+
+# ------------------------------------------------------------------ 4. memory
+def test_per_interval_metrics_too_large_for_memory_are_refused_before_the_run_dir(
+    tmp_path, capsys
+):
+    out = tmp_path / "r"
+    big = ["--num-seeds", "4096", "--log-interval", "1", "--num-envs", "1"]
+    argv = [*TINY_FLAGS, *big, "--total-timesteps", "2000000000", "--out", str(out)]
+    err = one_line_error(capsys, 2, train_main(argv))
+    assert "log_interval=1" in err and "metrics need about" in err and "GiB" in err, err
+    assert not list(tmp_path.iterdir())  # neither the run nor its .partial
+
+
+def test_layout_bank_too_large_to_build_is_refused():
+    kw = dict(num_layouts=1_000_000, size=32, goals_per_layout=1)
+    with pytest.raises(ValueError, match=r"num_layouts=1000000.*building the layout bank"):
+        registration.env_config("GridMaze-Random-v0", **kw)
+    registration.env_config("GridMaze-Random-v0", num_layouts=100_000)  # 15 x 15: 1.8 GiB
+
+
+# ------------------------------------------------------------------ 5. edited config.json
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("trained") / "run"
+    argv = [*TINY_FLAGS, "--total-timesteps", "32", "--eval-episodes", "2", "--out", str(out)]
+    assert train_main(argv) == 0
+    return out
+
+
+EDITS = [{"hidden_sizes": [32]}, {"hidden_sizes": [16, 16]}, {"dueling": False}, {"num_seeds": 2}]
+
+
+@pytest.mark.parametrize("edit", EDITS)
+def test_evaluate_on_a_run_whose_config_was_edited_is_one_line(edit, trained, tmp_path, capsys):
+    from jaxnav.evaluate.__main__ import main as evaluate_main
+
+    run = tmp_path / "run"
+    shutil.copytree(trained, run)
+    saved = json.loads((run / "config.json").read_text())
+    saved["config"].update(edit)  # the training config; "network" describes it for humans
+    (run / "config.json").write_text(json.dumps(saved))
+    err = one_line_error(capsys, 2, evaluate_main([str(run), "--episodes", "1"]))
+    assert f"{run}" in err and "parameters" in err and "config.json" in err, err
+    assert not (run / "eval.json").exists()
+
+
+# ------------------------------------------------------------------ 6. reset_to's cells
+def test_grid_reset_to_refuses_blocked_or_off_map_cells_and_suites_check_first():
+    import jax
+    import numpy as np
+
+    from jaxnav import experiments
+
+    env, params = jaxnav.make("GridMaze-v0", size=7, obstacle_density=0.3)
+    walls = np.asarray(params.bank.obstacles[0])
+    wall = [int(v) for v in np.argwhere(walls)[0]]
+    free = [[int(r), int(c)] for r, c in np.argwhere(~walls)[:2]]
+    key = jax.random.key(0)
+    for start, goal, layout, why in (
+        (wall, free[1], 0, f"reset_to start={wall}: a blocked cell"),
+        (free[0], wall, 0, f"reset_to goal={wall}: a blocked cell"),
+        ([-1, 0], free[1], 0, "reset_to start=[-1, 0]: off the 7x7 grid"),
+        (free[0], [0, 7], 0, "reset_to goal=[0, 7]: off the 7x7 grid"),
+        (free[0], free[1], 1, "layout 1 is not in the bank's 1"),
+    ):
+        with pytest.raises(ValueError, match=re.escape(why)):
+            env.reset_to(key, params, np.array(start), np.array(goal), layout)
+    env.reset_to(key, params, np.array(free[0]), np.array(free[1]))  # free cells: fine
+    suite = {"start": np.array([free[0], wall]), "goal": np.array(free[1::-1]), "layout": [0, 0]}
+    with pytest.raises(ValueError, match=re.escape(f"reset_to start={wall}")):
+        experiments.start_suite(env, params, suite)  # vmapped: checked before
+
+
+def test_robot_reset_to_refuses_a_pose_in_a_wall_or_off_the_arena():
+    import jax
+    import numpy as np
+
+    env, params = jaxnav.make("RobotSimple-v0", backend="kinematic")
+    bank = params.bank
+    rows = bank.grid.shape[1]
+    r, c = (int(v) for v in np.argwhere(np.asarray(bank.grid[0]))[0])
+    inside = [(c + 0.5) * bank.cell_size, (rows - 1 - r + 0.5) * bank.cell_size]
+    free_xy = np.asarray(bank.free_xy[0, :2], np.float64)
+    width, height = bank.size_m
+    key = jax.random.key(0)
+    for pose, goal, why in (
+        ([*inside, 0.0], free_xy[1], f"reset_to pose={[*inside, 0.0]}: a blocked cell"),
+        ([-0.5, 1.0, 0.0], free_xy[1], "reset_to pose=[-0.5, 1.0, 0.0]: off the"),
+        ([float("nan"), 1.0, 0.0], free_xy[1], "reset_to pose=[nan, 1.0, 0.0]: off the"),
+        ([*free_xy[0], 0.0], [width + 1, 1.0], f"reset_to goal=[{width + 1}, 1.0]: off the"),
+    ):
+        with pytest.raises(ValueError, match=re.escape(why)):
+            env.reset_to(key, params, np.array(pose), np.array(goal))
+    env.reset_to(key, params, np.array([*free_xy[0], 0.0]), free_xy[1])  # free: fine
+
+
+# ------------------------------------------------------------------ 7. signal while finishing
+def test_sigterm_during_the_final_evaluation_exits_143_and_resume_completes(
+    tmp_path, capsys, monkeypatch
+):
+    import os
+    import signal
+
+    from jaxnav import runner
+
+    tiny = [*TINY_FLAGS, "--total-timesteps", "64", "--eval-episodes", "2"]
+    ref = tmp_path / "ref"
+    assert train_main([*tiny, "--out", str(ref)]) == 0
+    evaluate = runner.evaluate_seeds
+
+    sent = []
+
+    def evaluate_then_sigterm(*args, **kwargs):
+        result = evaluate(*args, **kwargs)
+        if not sent:  # once: a second signal ends the process at once, by design
+            sent.append(os.kill(os.getpid(), signal.SIGTERM))  # train's handler records it
+        return result
+
+    monkeypatch.setattr(runner, "evaluate_seeds", evaluate_then_sigterm)
+    out = tmp_path / "run"
+    capsys.readouterr()
+    assert train_main([*tiny, "--out", str(out)]) == 128 + signal.SIGTERM
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "stopped by SIGTERM" in err and "--resume" in err, err
+    assert not out.exists() and (tmp_path / ".run.partial").is_dir()
+    monkeypatch.setattr(runner, "evaluate_seeds", evaluate)
+    assert train_main(["--resume", str(out)]) == 0
+    assert (out / "metrics.csv").read_text() == (ref / "metrics.csv").read_text()
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["trained"] == json.loads((ref / "summary.json").read_text())["trained"]
+
+
+# ------------------------------------------------------------------ 8. the programs cache
+class Planted:
+    """A pickle that, when loaded, creates a file: what a hostile cache entry could do."""
+
+    def __init__(self, marker: Path) -> None:
+        self.marker = marker
+
+    def __reduce__(self):
+        return (Path.touch, (self.marker,))
+
+
+def test_a_cache_directory_others_can_write_is_not_used_and_nothing_is_unpickled(
+    tmp_path, capsys, monkeypatch
+):
+    import os
+    import pickle
+
+    flags = [*TINY_FLAGS, "--total-timesteps", "64", "--eval-episodes", "2"]
+    root = tmp_path / "cache"
+    monkeypatch.setenv("JAXNAV_CACHE_DIR", str(root))
+    assert train_main([*flags, "--out", str(tmp_path / "a")]) == 0
+    (entry,) = list((root / "programs").iterdir())
+    marker = tmp_path / "code-ran"
+    (entry / "programs.pkl").write_bytes(pickle.dumps(Planted(marker)))
+    os.chmod(root, 0o777)  # e.g. a shared directory: anyone could have planted that entry
+    capsys.readouterr()
+    assert train_main([*flags, "--out", str(tmp_path / "b")]) == 0
+    out, err = capsys.readouterr()
+    assert not marker.exists()
+    assert "from the cache" not in out
+    (warning,) = [line for line in err.splitlines() if "JAXNAV_CACHE_DIR" in line]
+    assert f"{root} is writable by other users (mode 777)" in warning, warning
+    assert "not used" in warning
