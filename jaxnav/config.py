@@ -9,7 +9,7 @@ from typing import Any
 import jax
 
 from jaxnav.agents.dqn import COMPUTE_DTYPES
-from jaxnav.presets import PRESETS, train_defaults
+from jaxnav.presets import PRESETS, default_algo, train_defaults
 from jaxnav.registration import env_config
 from jaxnav.sharding import mesh_shape
 
@@ -74,8 +74,10 @@ class TrainConfig:
     def for_env(cls, env: str = "GridMaze-v0", **overrides: Any) -> TrainConfig:
         """The config for ``env`` with the tuned defaults of that env and algorithm
         (``jaxnav.presets``; e.g. the robot envs train longer with 3-step returns), then
-        ``overrides``."""
-        return cls(env=env, **{**train_defaults(env, overrides.get("algo", "dqn")), **overrides})
+        ``overrides``; without an ``algo`` the env's default algorithm (``presets.default_algo``:
+        the DQN, PQN on GridMaze-Random-v0)."""
+        algo = overrides.get("algo", default_algo(env))
+        return cls(env=env, **{"algo": algo, **train_defaults(env, algo), **overrides})
 
     @property
     def steps_per_iteration(self) -> int:

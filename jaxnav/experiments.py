@@ -409,7 +409,9 @@ def print_rows(suite: str, rows: dict[str, Any]) -> None:
 
 
 # ------------------------------------------------------------------------ generalization
-HELD_OUT_MAZE_SEED = 1_000_003  # maze_seed of the held-out mazes of the run's own env
+# maze_seed (GridMaze: layout_seed, the same as grid_maze.HELD_OUT_LAYOUT_SEED) of the held-out
+# mazes of the run's own env
+HELD_OUT_MAZE_SEED = 1_000_003
 EXAMPLE_MAZES = EXAMPLE_MAZE.parent
 OWN = "own"  # a family's env: the run's own env id, with all its overrides
 GENERALIZATION_METRICS = (
@@ -452,8 +454,19 @@ class Family:
 def default_families(config: TrainConfig, maze_seed: int = HELD_OUT_MAZE_SEED) -> list[Family]:
     """The run's own env on held-out mazes (``maze_seed``, where its env has that field; else
     its training mazes, named so), RobotSimple-v0, RobotComplex-v0 and every maze file of
-    examples/mazes (RobotMaze-v0)."""
+    examples/mazes (RobotMaze-v0). A GridMaze run: its env on the layouts of ``layout_seed``
+    ``maze_seed`` (the default shares none with the default training bank, see
+    ``grid_maze.HELD_OUT_LAYOUT_SEED``) and on its training layouts; no robot family fits it."""
     fields = {f.name for f in dataclasses.fields(env_config(config.env, **config.env_kwargs))}
+    if "layout_seed" in fields:
+        return [
+            Family(
+                f"{config.env} layout_seed={maze_seed} (held out)",
+                OWN,
+                {"layout_seed": maze_seed},
+            ),
+            Family(f"{config.env} (training layouts)", OWN),
+        ]
     if "maze_seed" in fields:
         own = Family(
             f"{config.env} maze_seed={maze_seed} (held out)", OWN, {"maze_seed": maze_seed}
@@ -681,7 +694,7 @@ def parser() -> argparse.ArgumentParser:
         "--maze-seed",
         type=int,
         default=HELD_OUT_MAZE_SEED,
-        help="maze_seed of the own env's held-out mazes",
+        help="maze_seed (GridMaze: layout_seed) of the own env's held-out mazes",
     )
     gen.add_argument("--episodes", type=int, default=1000, help="episodes per family and seed")
     gen.add_argument("--seed", type=int, default=0, help="seed of the test episodes")

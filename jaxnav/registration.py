@@ -16,7 +16,8 @@ _REGISTRY: dict[str, tuple[Callable[..., Environment], Callable[[], Any], dict[s
     "GridMaze-Random-v0": (
         grid_maze.GridMaze,
         grid_maze.default_config,
-        {"random_layouts": True, "obs_mode": "sensor"},
+        # a waypoint 3 cells ahead: see grid_maze's docstring and benchmarks/grid_random_sweep.py
+        {"random_layouts": True, "obs_mode": "sensor", "waypoint_cells": 3},
     ),
     "RobotSimple-v0": (robot.RobotNav, robot.default_config, {"maze": "simple"}),
     "RobotComplex-v0": (robot.RobotNav, robot.default_config, {"maze": "complex"}),

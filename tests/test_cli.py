@@ -133,7 +133,7 @@ def test_evaluate_refuses_an_env_whose_observations_do_not_fit(tiny_run, capsys)
     assert evaluate_main([str(tiny_run), "--env", "GridMaze-Random-v0"]) == 2
     err = capsys.readouterr().err.strip()
     assert err == (
-        "jaxnav.evaluate: error: --env GridMaze-Random-v0: observations (31,) "
+        "jaxnav.evaluate: error: --env GridMaze-Random-v0: observations (33,) "
         "do not fit the run's network (10,) one-hot encoded to 34"
     )
     # the same observation shape, but a grid of another size: other one-hot widths

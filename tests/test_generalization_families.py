@@ -7,6 +7,7 @@ import functools
 
 import jaxnav
 from jaxnav.config import TrainConfig
+from jaxnav.envs.grid_maze import HELD_OUT_LAYOUT_SEED
 from jaxnav.envs.robot.env import GENERALIST, RobotConfig
 from jaxnav.experiments import OWN, Family, default_families
 
@@ -66,3 +67,16 @@ def test_every_default_family_of_the_generalist_fits_its_policy():
         assert obs_size(env, **kwargs) == want, family.name
         if env != "RobotNav-v0":
             assert kwargs["waypoint_cells"] == GENERALIST["waypoint_cells"], family.name
+
+
+def test_a_grid_runs_default_families_are_held_out_layouts_and_its_training_ones():
+    """A GridMaze run is tested on the layouts of the held-out ``layout_seed`` (the one whose
+    bank shares no layout with training's, tests/test_grid_maze.py) and on its own; a robot
+    family would not fit its observations."""
+    run = TrainConfig.for_env("GridMaze-Random-v0", env_kwargs={"size": 7, "num_layouts": 8})
+    held_out, training = default_families(run)
+    assert held_out.for_run(run) == (
+        "GridMaze-Random-v0",
+        {"size": 7, "num_layouts": 8, "layout_seed": HELD_OUT_LAYOUT_SEED},
+    )
+    assert training.for_run(run) == ("GridMaze-Random-v0", {"size": 7, "num_layouts": 8})

@@ -153,6 +153,122 @@ def test_observation_contents_of_each_mode():
     np.testing.assert_allclose(s[-2:], offset)
 
 
+# a hand-made 7x7 layout: from the left of row 4 to the left of row 2 the shortest path runs
+# right along row 4, up column 4 and left along row 2 (10 moves); around the outside, 18
+HAND_MADE = """
+.......
+.#####.
+.....#.
+####.#.
+.....#.
+.#####.
+.......
+"""
+
+
+def hand_made_env(waypoint_cells: int):
+    """GridMaze-v0 (every free cell a goal) on ``HAND_MADE`` with the waypoint."""
+    obstacles = np.array([[c == "#" for c in row] for row in HAND_MADE.split()])
+    env, params = jaxnav.make(
+        "GridMaze-v0", size=7, obstacle_density=0.0, obs_mode="sensor",
+        waypoint_cells=waypoint_cells,
+    )  # fmt: skip
+    return env, params.replace(bank=gm.build_bank(env.config, obstacles[None]))
+
+
+@pytest.mark.parametrize(
+    "k, start, waypoint",
+    [
+        (2, (4, 0), (4, 2)),  # straight along row 4
+        (3, (4, 2), (3, 4)),  # round the corner at (4, 4)
+        (4, (4, 3), (2, 3)),  # up column 4 and back left along row 2
+        (2, (2, 1), (2, 0)),  # the goal, 1 move away, is nearer than k
+        (3, (0, 0), (2, 0)),  # from the top-left corner down column 0 to the goal
+        (2, (6, 0), (4, 0)),  # from below: up column 0
+        (2, (6, 4), (6, 2)),  # a tie at (6, 4), 16 moves either way round: left before right
+    ],
+)
+def test_waypoint_observation_on_a_hand_made_layout(k, start, waypoint):
+    env, params = hand_made_env(k)
+    goal = (2, 0)
+    obs, state = start_at(env, params, start, goal)
+    assert obs.shape == (env.obs_size,) == (25 + 4 + 2 + 2,)
+    assert tuple(np.asarray(env.waypoint(state, params)).tolist()) == waypoint
+    expected = (np.array(waypoint) - np.array(start)) / k
+    np.testing.assert_allclose(obs[-2:], expected)  # (drow, dcol) / k, after the goal offset
+    np.testing.assert_allclose(obs[-4:-2], (np.array(goal) - np.array(start)) / 6)
+    assert bool(env.observation_space(params).contains(obs))
+
+
+def test_waypoint_descends_the_shortest_path_in_random_layouts(random_maze):
+    """From every free cell of a bank layout, to a bank goal: the waypoint is min(k, d)
+    moves from the robot (Manhattan offset at most that) and d - min(k, d) from the goal,
+    against a plain-Python BFS; between cells every step of the way is a free cell."""
+    k = 3
+    base, _ = random_maze
+    env, params = jaxnav.make("GridMaze-Random-v0", **{**vars(base.config), "waypoint_cells": k})
+    bank = params.bank
+    cases = []  # (layout, goal, start, BFS steps from the goal)
+    for layout in range(3):
+        goal = tuple(np.asarray(bank.free_cells[layout, bank.goal_slots[layout, 0]]).tolist())
+        to_goal = bfs(np.asarray(bank.obstacles[layout]), goal)
+        cases += [(layout, goal, cell, to_goal) for cell in sorted(to_goal) if cell != goal]
+    layouts, goals, starts = (jnp.array([c[i] for c in cases]) for i in range(3))
+
+    @jax.jit
+    def waypoints(starts, goals, layouts):
+        _, states = jax.vmap(env.reset_to, in_axes=(None, None, 0, 0, 0))(
+            KEY, params, starts, goals, layouts
+        )
+        return jax.vmap(env.waypoint, in_axes=(0, None))(states, params)
+
+    points = np.asarray(waypoints(starts, goals, layouts))
+    for (layout, _, cell, to_goal), point in zip(cases, points, strict=True):
+        d, point = to_goal[cell], tuple(point.tolist())
+        ahead = min(k, d)
+        assert to_goal[point] == d - ahead, (layout, cell, point)
+        assert bfs(np.asarray(bank.obstacles[layout]), cell)[point] == ahead
+        assert abs(point[0] - cell[0]) + abs(point[1] - cell[1]) <= ahead
+
+
+def test_waypoint_for_a_goal_without_a_distance_field_points_at_the_goal():
+    env, params = jaxnav.make(
+        "GridMaze-Random-v0", size=7, obstacle_density=0.0, num_layouts=1, goals_per_layout=1,
+        waypoint_cells=2,
+    )  # fmt: skip
+    bank_goal = tuple(np.asarray(params.bank.free_cells[0, params.bank.goal_slots[0, 0]]))
+    goal = (0, 0) if bank_goal != (0, 0) else (6, 6)
+    start = (6 - goal[0], 6 - goal[1])  # the opposite corner
+    obs, state = start_at(env, params, start, goal)
+    step_ = np.sign(np.array(goal) - np.array(start)) * 2  # clipped to 2 cells on each axis
+    np.testing.assert_array_equal(env.waypoint(state, params), np.array(start) + step_)
+    np.testing.assert_allclose(obs[-2:], step_ / 2)
+
+
+def test_waypoint_needs_the_sensor_observation_and_is_off_in_the_papers_grid():
+    assert jaxnav.make("GridMaze-v0", size=5)[0].config.waypoint_cells == 0
+    with pytest.raises(ValueError, match="waypoint_cells=2: .* obs_mode='sensor'"):
+        jaxnav.make("GridMaze-v0", size=5, waypoint_cells=2)
+    with pytest.raises(ValueError, match="waypoint_cells=-1"):
+        jaxnav.make("GridMaze-Random-v0", size=5, waypoint_cells=-1)
+
+
+def test_held_out_layout_seed_shares_no_layout_with_the_training_bank():
+    """The default training bank of GridMaze-Random-v0 (and, a superset, one of 16,384
+    layouts from its layout_seed) and the held-out bank of ``HELD_OUT_LAYOUT_SEED`` that
+    benchmarks/grid_random_sweep.py tests on have no layout in common."""
+    cfg = jaxnav.registration.env_config("GridMaze-Random-v0")
+    train = gm.generate_layouts(
+        cfg.size, cfg.obstacle_density, max(cfg.num_layouts, 16384), cfg.layout_seed
+    )
+    small = gm.generate_layouts(cfg.size, cfg.obstacle_density, cfg.num_layouts, cfg.layout_seed)
+    np.testing.assert_array_equal(train[: cfg.num_layouts], small)  # a larger bank extends it
+    held_out = gm.generate_layouts(cfg.size, cfg.obstacle_density, 1024, gm.HELD_OUT_LAYOUT_SEED)
+    seen = {b.tobytes() for b in train}
+    assert len(seen) == len(train)  # no repeats within the training bank either
+    assert not seen & {b.tobytes() for b in held_out}
+
+
 @settings(max_examples=5, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1))
 def test_index_observation_is_the_onehot_one_before_encoding(maze, seed):

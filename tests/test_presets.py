@@ -6,7 +6,14 @@ from __future__ import annotations
 import pytest
 
 from jaxnav.config import ALGOS, TrainConfig
-from jaxnav.presets import GENERALIST_PQN, PRESETS, ROBOT_DQN, train_defaults
+from jaxnav.presets import (
+    GENERALIST_PQN,
+    GRID_RANDOM_PQN,
+    PRESETS,
+    ROBOT_DQN,
+    default_algo,
+    train_defaults,
+)
 from jaxnav.registration import registered_envs
 from jaxnav.train.__main__ import config_from_args
 from jaxnav.train.__main__ import parser as train_parser
@@ -99,3 +106,21 @@ def test_training_cli_lists_algo_and_applies_the_preset_under_its_flags():
     assert config.rollout_length == 32 and config.td_lambda == GENERALIST_PQN["td_lambda"]
     assert parse("--env", "RobotNav-v0").n_step == ROBOT_DQN["n_step"]  # dqn by default
     assert parse().algo == "dqn" and parse().env == "GridMaze-v0"
+
+
+def test_grid_random_trains_with_its_pqn_preset_unless_the_dqn_is_asked_for():
+    """GridMaze-Random-v0's default algorithm is PQN (``default_algo``), with its own preset;
+    ``--algo dqn`` gives the paper's DQN settings; GridMaze-v0 keeps TrainConfig's defaults."""
+    assert default_algo("GridMaze-Random-v0") == "pqn" and default_algo("GridMaze-v0") == "dqn"
+    config = TrainConfig.for_env("GridMaze-Random-v0")
+    assert config == TrainConfig.for_env("GridMaze-Random-v0", algo="pqn")
+    assert config.algo == "pqn" and config.hidden_sizes == GRID_RANDOM_PQN["hidden_sizes"]
+    assert train_defaults("GridMaze-Random-v0") == GRID_RANDOM_PQN
+    config.validate()
+    dqn = TrainConfig.for_env("GridMaze-Random-v0", algo="dqn")
+    assert dqn == TrainConfig(env="GridMaze-Random-v0")
+    assert TrainConfig.for_env("GridMaze-v0") == TrainConfig()  # the paper's grid, unchanged
+    parse = lambda *argv: config_from_args(train_parser().parse_args(list(argv)))  # noqa: E731
+    assert parse("--env", "GridMaze-Random-v0") == config
+    assert parse("--env", "GridMaze-Random-v0", "--algo", "dqn") == dqn
+    assert parse("--env", "GridMaze-Random-v0", "--total-timesteps", "5000").algo == "pqn"

@@ -34,6 +34,17 @@ Observation modes (all encode the paper's information: robot, goal and obstacle 
   the occupancy of the (2r+1)^2 window around the robot (off-grid counts as blocked), the
   free distance along each of the 4 grid directions / (size - 1), and the goal's offset.
   Coordinates of a changing obstacle set do not generalize in an MLP; local sensing does.
+
+``waypoint_cells`` (k > 0, ``sensor`` only; off by default, so the paper's GridMaze-v0 is
+unchanged) appends a global planner's hint, as ``RobotNav-v0``'s waypoint: the offset
+(drow, dcol) / k from the robot to the cell k moves ahead on a shortest path to the goal
+(descending the goal's BFS distance field; ties go to up, down, left, right in that order),
+the goal itself once it is within k moves. A point several cells ahead, not the next cell:
+with k = 1 the hint would be the optimal action itself. With k >= 2 the policy must still
+combine it with the occupancy window (an offset such as (-1, +1) leaves two moves, and only
+free ones lead there), and with larger k the path bends around obstacles between the robot
+and the point. The bank holds distance fields for its goal cells only; for a goal given to
+``reset_to`` that is not one of them the hint points at the goal, each axis clipped to k.
 """
 
 from __future__ import annotations
@@ -62,6 +73,9 @@ from jaxnav.envs.maze_algorithms import (
 ACTION_NAMES = ("up", "down", "left", "right")
 MOVES = np.array([[-1, 0], [1, 0], [0, -1], [0, 1]], dtype=np.int32)
 OBS_MODES = ("index", "onehot", "paper", "sensor")
+# layout_seed of held-out test banks: its layouts are none of a training bank's of the default
+# layout_seed 0 (tests/test_grid_maze.py checks this for the default generator)
+HELD_OUT_LAYOUT_SEED = 1_000_003
 
 
 @dataclasses.dataclass(frozen=True)
@@ -82,6 +96,7 @@ class GridMazeConfig:
     goals_per_layout: int = 16  # goal cells per layout when random_layouts
     obs_mode: str = "index"
     sensor_radius: int = 2
+    waypoint_cells: int = 0  # sensor: offset to the cell k moves ahead on a shortest path; 0 off
     max_steps: int = 60
     goal_reward: float = 4.0
     collision_reward: float = -1.0
@@ -94,11 +109,17 @@ class GridMazeConfig:
         check_int("num_layouts", self.num_layouts, 1, 1_000_000)
         check_int("goals_per_layout", self.goals_per_layout, 1, 1_000_000)
         check_int("sensor_radius", self.sensor_radius, 1, 64)
+        check_int("waypoint_cells", self.waypoint_cells, 0, 64)
         check_int("max_steps", self.max_steps, 1, 1_000_000)
         if not isinstance(self.random_layouts, bool):
             raise ValueError(f"random_layouts={self.random_layouts!r}: must be true or false")
         if self.obs_mode not in OBS_MODES:
             raise ValueError(f"obs_mode={self.obs_mode!r}: must be one of {', '.join(OBS_MODES)}")
+        if self.waypoint_cells and self.obs_mode != "sensor":
+            raise ValueError(
+                f"waypoint_cells={self.waypoint_cells}: the waypoint is part of the sensor "
+                f"observation; use obs_mode='sensor' (not {self.obs_mode!r}) or waypoint_cells=0"
+            )
         d = self.obstacle_density
         if not is_number(d) or not 0.0 <= d < 1.0:
             raise ValueError(f"obstacle_density={d!r}: must be a number in [0, 1)")
@@ -157,6 +178,9 @@ class LayoutBank:
     goal_distance: jax.Array  # int16[L, P, S, S] BFS steps to the goal, -1 where unreachable
     obstacle_cells: jax.Array  # int32[L, O, 2], padded by repeating the first obstacle
     blocked_moves: jax.Array  # uint8[L, S, S]: bit a set if action a from the cell collides
+    # int16[L, S, S]: a goal slot whose distance field is the cell's, -1 if none; only built
+    # for the waypoint (None without it)
+    goal_slot_of: jax.Array | None = None
 
     @property
     def num_layouts(self) -> int:
@@ -177,9 +201,14 @@ def generate_layouts(size: int, density: float, num: int, seed: int) -> np.ndarr
     return fill_pockets(obstacles.reshape(num, size, size), ties="last")
 
 
-def build_bank(cfg: GridMazeConfig) -> LayoutBank:
-    num = cfg.num_layouts if cfg.random_layouts else 1
-    obstacles = generate_layouts(cfg.size, cfg.obstacle_density, num, cfg.layout_seed)
+def build_bank(cfg: GridMazeConfig, obstacles: np.ndarray | None = None) -> LayoutBank:
+    """The bank of ``cfg``'s generated layouts, or of ``obstacles`` (bool[L, S, S], e.g. a
+    hand-made layout: L = 1 unless ``cfg.random_layouts``, each layout one connected free
+    region) with ``cfg``'s other settings."""
+    if obstacles is None:
+        num = cfg.num_layouts if cfg.random_layouts else 1
+        obstacles = generate_layouts(cfg.size, cfg.obstacle_density, num, cfg.layout_seed)
+    num = obstacles.shape[0]
     cells = cfg.size * cfg.size
     free_mask = ~obstacles.reshape(num, cells)
     num_free = free_mask.sum(axis=1)
@@ -219,7 +248,16 @@ def build_bank(cfg: GridMazeConfig) -> LayoutBank:
     blocked_moves = np.zeros((num, s, s), np.uint8)
     for a, (dr, dc) in enumerate(MOVES):
         blocked_moves |= walled[:, 1 + dr : 1 + dr + s, 1 + dc : 1 + dc + s].astype(np.uint8) << a
+    goal_slot_of = None
+    if cfg.waypoint_cells:
+        slot_map = np.full((num, s, s), -1, np.int16)
+        rows = np.repeat(np.arange(num), goal_slots.shape[1])
+        slot_map[rows, goals[..., 0].ravel(), goals[..., 1].ravel()] = np.tile(
+            np.arange(goal_slots.shape[1], dtype=np.int16), num
+        )
+        goal_slot_of = jnp.asarray(slot_map)
     return LayoutBank(
+        goal_slot_of=goal_slot_of,
         blocked_moves=jnp.asarray(blocked_moves),
         obstacles=jnp.asarray(obstacles),
         free_cells=jnp.asarray(free_cells, jnp.int32),
@@ -322,7 +360,8 @@ class GridMaze(Environment[GridMazeState, GridMazeParams]):
             return 4 * s + 4 + 2
         if mode == "paper":
             return 4 + 2 * self._bank.obstacle_cells.shape[1]
-        return (2 * self.config.sensor_radius + 1) ** 2 + 4 + 2
+        hint = 2 if self.config.waypoint_cells else 0
+        return (2 * self.config.sensor_radius + 1) ** 2 + 4 + 2 + hint
 
     # -- episodes -----------------------------------------------------------------
     def reset_env(self, key: jax.Array, params: GridMazeParams) -> tuple[jax.Array, GridMazeState]:
@@ -495,6 +534,37 @@ class GridMaze(Environment[GridMazeState, GridMazeParams]):
         hit = self._blocked(params, state.layout, state.pos + jnp.asarray(rays))
         free_run = jnp.argmax(jnp.concatenate([hit, jnp.ones((4, 1), bool)], axis=1), axis=1)
         offset = (state.goal - state.pos).astype(jnp.float32) * scale
-        return jnp.concatenate(
-            [occupancy.astype(jnp.float32), free_run.astype(jnp.float32) * scale, offset]
-        )
+        parts = [occupancy.astype(jnp.float32), free_run.astype(jnp.float32) * scale, offset]
+        if self.config.waypoint_cells:
+            to_waypoint = self.waypoint(state, params) - state.pos
+            parts.append(to_waypoint.astype(jnp.float32) / self.config.waypoint_cells)
+        return jnp.concatenate(parts)
+
+    def waypoint(self, state: GridMazeState, params: GridMazeParams) -> jax.Array:
+        """(row, col) of the cell ``waypoint_cells`` moves ahead of the robot on a shortest
+        path to the goal, the goal once it is nearer; for a goal without a distance field in
+        the bank (``reset_to``), the goal clipped to ``waypoint_cells`` from the robot on each
+        axis. See the module docstring."""
+        k = self.config.waypoint_cells
+        bank = params.bank
+        # -1: the bank has no distance field for this goal
+        slot = bank.goal_slot_of[state.layout, state.goal[0], state.goal[1]].astype(jnp.int32)
+        far = jnp.iinfo(jnp.int32).max  # obstacles, unreachable cells and off the grid
+
+        def steps_to_goal(cell: jax.Array) -> jax.Array:  # gathers of single cells, not a field
+            inside = jnp.all((cell >= 0) & (cell < self.size), axis=-1)
+            c = jnp.clip(cell, 0, self.size - 1)
+            d = bank.goal_distance[state.layout, jnp.maximum(slot, 0), c[..., 0], c[..., 1]]
+            d = d.astype(jnp.int32)
+            return jnp.where(inside & (d >= 0), d, far)
+
+        cell, moves = state.pos, jnp.asarray(MOVES)
+        here = steps_to_goal(cell)
+        for _ in range(k):  # a few static steps down the distance field
+            around = steps_to_goal(cell + moves)
+            best = jnp.argmin(around)  # the first of equals: up, down, left, right
+            better = around[best] < here
+            cell = jnp.where(better, cell + moves[best], cell)
+            here = jnp.where(better, around[best], here)
+        unknown = state.pos + jnp.clip(state.goal - state.pos, -k, k)
+        return jnp.where(slot >= 0, cell, unknown)

@@ -123,6 +123,7 @@ def parser() -> argparse.ArgumentParser:
         "--algo pqn": train_defaults("GridMaze-v0", "pqn"),
         "--algo pqn on robot envs": train_defaults("RobotSimple-v0", "pqn"),
         "--algo pqn on RobotNav-v0": train_defaults("RobotNav-v0", "pqn"),
+        "GridMaze-Random-v0": train_defaults("GridMaze-Random-v0"),  # its default: pqn
     }
     for f in dataclasses.fields(TrainConfig):
         if f.name == "env_kwargs":
