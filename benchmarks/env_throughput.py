@@ -18,6 +18,8 @@ XLA's peak memory of the compiled loop (``Compiled.memory_analysis``).
 
 Rows (``ROWS``): ``GridMaze-v0``, ``GridMaze-Random-v0`` (auto-reset ``env.step``),
 ``GridMaze-v0 onehot`` (its observation one-hot encoded by the env: 66 int8 values, not 10),
+``GridMaze-Random-v0 no waypoint`` (``waypoint_cells=0``, as before the waypoint became its
+default; only when asked for),
 ``GridMaze-v0 step_env only`` (no time limit, no auto-reset: the cost of auto-reset is its
 ratio to GridMaze-v0), the robot ``RobotRandom-v0 mjx`` / ``RobotRandom-v0 kinematic`` (a
 random maze per episode, one backend each; ``RobotSimple-v0 ...`` too) and the peers, each
@@ -57,6 +59,9 @@ ResetFn = Callable[[jax.Array], tuple[jax.Array, Any]]
 STEP_ENV_ONLY = "GridMaze-v0 step_env only"
 ONEHOT = "GridMaze-v0 onehot"
 OUR_ENVS = ("GridMaze-v0", ONEHOT, "GridMaze-Random-v0", STEP_ENV_ONLY)
+# GridMaze-Random-v0 as it was before the waypoint became its default (the cost of the waypoint
+# is the ratio of the two rows); not a default row
+NO_WAYPOINT = "GridMaze-Random-v0 no waypoint"
 ROBOT_ENVS = tuple(
     f"{env} {backend}"
     for env in ("RobotRandom-v0", "RobotSimple-v0")
@@ -66,7 +71,7 @@ GYMNAX_ENVS = ("FourRooms-misc", "MetaMaze-misc")
 NAVIX = "navix FourRooms"
 JAXMARL = "jaxmarl JaxNav"
 PEER_ENVS = GYMNAX_ENVS + (NAVIX, JAXMARL)
-ALL_ENVS = OUR_ENVS + ROBOT_ENVS + PEER_ENVS
+ALL_ENVS = OUR_ENVS + (NO_WAYPOINT,) + ROBOT_ENVS + PEER_ENVS
 DEFAULT_ENVS = OUR_ENVS + GYMNAX_ENVS
 DEFAULT_OUT = Path("benchmarks/results/env_throughput.json")
 
@@ -126,8 +131,9 @@ def build(name: str) -> Row:
     if name in ROBOT_ENVS:
         env_id, backend = name.split(" ")
         env, params = jaxnav.make(env_id, backend=backend)
-    elif name in OUR_ENVS:
-        overrides = {"obs_mode": "onehot"} if name == ONEHOT else {}
+    elif name in (*OUR_ENVS, NO_WAYPOINT):
+        by_row = {ONEHOT: {"obs_mode": "onehot"}, NO_WAYPOINT: {"waypoint_cells": 0}}
+        overrides = by_row.get(name, {})
         env, params = jaxnav.make(name.split(" ")[0], **overrides)
     else:
         raise ValueError(f"unknown row {name!r}; rows: {', '.join(ALL_ENVS)}")
