@@ -128,7 +128,11 @@ def grid_layout(env: grid_maze.GridMaze, params: grid_maze.GridMazeParams) -> li
         _entry("occupied", offset=[dr, dc]) for dr in range(-r, r + 1) for dc in range(-r, r + 1)
     ]
     runs = [_entry(f"free_cells_{m}", inv) for m in moves]
-    return window + runs + [_entry("goal_drow", inv), _entry("goal_dcol", inv)]
+    entries = window + runs + [_entry("goal_drow", inv), _entry("goal_dcol", inv)]
+    k = env.config.waypoint_cells
+    if k:  # the planner's hint: offset to the cell k moves ahead on a shortest path, / k
+        entries += [_entry("waypoint_drow", 1.0 / k), _entry("waypoint_dcol", 1.0 / k)]
+    return entries
 
 
 GRID_QUANTITIES = {
@@ -145,6 +149,9 @@ GRID_QUANTITIES = {
     **{f"blocked_{m}": f"1 where moving {m} collides (an obstacle or the edge)" for m in MOVES},
     "goal_drow": "goal row minus robot row, in cells",
     "goal_dcol": "goal column minus robot column, in cells",
+    "waypoint_drow": "row of the cell `waypoint_cells` moves ahead on a shortest path to the "
+    "goal (the goal once nearer), minus the robot's row",
+    "waypoint_dcol": "its column minus the robot's column",
     "occupied": "1 where the cell at `offset` (drow, dcol) from the robot is an obstacle or "
     "off the grid",
     **{f"free_cells_{m}": f"free cells in a line {m} of the robot" for m in MOVES},
