@@ -62,6 +62,18 @@ def read_run_metrics(run: Path) -> dict[str, np.ndarray]:
     return {k: np.array([[float(r[k]) for r in rs] for rs in by_seed]) for k in names}
 
 
+def curve_axis(ax: Any, metric: str, title: str) -> None:
+    """Scales, ticks, labels and grid of a training-curve panel of ``metric``."""
+    if metric == "loss":
+        ax.set_yscale("log")
+    if metric == "success_rate":
+        ax.set_ylim(-0.02, 1.02)
+    steps_axis(ax)
+    ax.set_xlabel("env steps per seed")
+    ax.set_title(title, fontsize=10)
+    ax.grid(alpha=0.3)
+
+
 def run_curves(metrics: dict[str, np.ndarray], title: str) -> Any:
     """One run's training curves (``CURVES``): each seed thin, the mean over seeds thick with
     its 95% t-band when there are several."""
@@ -78,14 +90,7 @@ def run_curves(metrics: dict[str, np.ndarray], title: str) -> Any:
             mean, half = t_interval(values)
             ax.plot(steps, mean, color="tab:blue", lw=2)
             ax.fill_between(steps, mean - half, mean + half, color="tab:blue", alpha=0.2)
-        if metric == "loss":
-            ax.set_yscale("log")
-        if metric == "success_rate":
-            ax.set_ylim(-0.02, 1.02)
-        steps_axis(ax)
-        ax.set_xlabel("env steps per seed")
-        ax.set_title(label, fontsize=10)
-        ax.grid(alpha=0.3)
+        curve_axis(ax, metric, label)
     seeds = f"{n_seeds} seeds, mean and 95% CI" if n_seeds > 1 else "1 seed"
     fig.suptitle(f"{title}: training (epsilon-greedy episodes), {seeds}", fontsize=11)
     fig.tight_layout(rect=(0, 0, 1, 0.92))
@@ -109,14 +114,7 @@ def training_curves(results: dict[str, Any]) -> Any:
                 mean, half = t_interval(values)
                 ax.plot(steps, mean, color=COLORS[agent], label=LABELS[agent])
                 ax.fill_between(steps, mean - half, mean + half, color=COLORS[agent], alpha=0.25)
-            if metric == "loss":
-                ax.set_yscale("log")
-            if metric == "success_rate":
-                ax.set_ylim(-0.02, 1.02)
-            steps_axis(ax)
-            ax.set_xlabel("env steps per seed")
-            ax.set_title(f"{next(iter(agents.values()))['env']}: {label}", fontsize=10)
-            ax.grid(alpha=0.3)
+            curve_axis(ax, metric, f"{next(iter(agents.values()))['env']}: {label}")
         row[0].legend(fontsize=8)
     fig.suptitle(
         f"Training (epsilon-greedy episodes), mean and 95% CI over {n_seeds} seeds", fontsize=11

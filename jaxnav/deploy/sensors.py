@@ -62,6 +62,13 @@ def yaw_from_quaternion(x: float, y: float, z: float, w: float) -> float:
     return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
 
 
+def bearing(dx: float, dy: float, yaw: float) -> tuple[float, float]:
+    """(sin, cos) of the direction of the offset (dx, dy) relative to the heading ``yaw``, as
+    the robot env's observation has them."""
+    angle = math.atan2(dy, dx) - yaw
+    return math.sin(angle), math.cos(angle)
+
+
 def _wrap(angle: np.ndarray) -> np.ndarray:
     """Angles wrapped to [-pi, pi)."""
     return (np.asarray(angle, np.float64) + np.pi) % (2 * np.pi) - np.pi
@@ -174,18 +181,10 @@ class ScanObservation:
             "heading_sin": math.sin(yaw),
             "heading_cos": math.cos(yaw),
         }
-        goal_angle = math.atan2(gy - y, gx - x) - yaw
-        raw["goal_bearing_sin"], raw["goal_bearing_cos"] = (
-            math.sin(goal_angle),
-            math.cos(goal_angle),
-        )
+        raw["goal_bearing_sin"], raw["goal_bearing_cos"] = bearing(gx - x, gy - y, yaw)
         if waypoint is not None:
             wx, wy = (float(v) for v in waypoint)
-            angle = math.atan2(wy - y, wx - x) - yaw
-            raw["waypoint_bearing_sin"], raw["waypoint_bearing_cos"] = (
-                math.sin(angle),
-                math.cos(angle),
-            )
+            raw["waypoint_bearing_sin"], raw["waypoint_bearing_cos"] = bearing(wx - x, wy - y, yaw)
             raw["waypoint_distance"] = math.hypot(wx - x, wy - y)
         values = np.empty(len(self.frame_entries), np.float64)
         for i, e in enumerate(self.frame_entries):
