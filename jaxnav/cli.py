@@ -136,3 +136,16 @@ def env_from_args(args: argparse.Namespace, env: str | None) -> tuple[str | None
         env_kwargs["maze_file"] = str(args.maze_file)
         env = env or "RobotMaze-v0"
     return env, env_kwargs
+
+
+def add_policy_source(p: argparse.ArgumentParser, pretrained_help: str) -> None:
+    """The policy to run: a trained run directory, or ``--pretrained NAME`` (one of them,
+    ``check_policy_source``)."""
+    p.add_argument("run", type=Path, nargs="?", help="run directory written by jaxnav.train")
+    p.add_argument("--pretrained", metavar="NAME", help=pretrained_help)
+
+
+def check_policy_source(args: argparse.Namespace) -> None:
+    """``UsageError`` unless exactly one of a run directory and ``--pretrained`` was given."""
+    if (args.run is None) == (args.pretrained is None):
+        raise UsageError("give a run directory or --pretrained NAME, one of them")

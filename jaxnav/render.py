@@ -29,7 +29,16 @@ import numpy as np
 
 from jaxnav import run_dir
 from jaxnav.agents import dqn
-from jaxnav.cli import HelpFormatter, Parser, UsageError, add_env_args, env_from_args, fail
+from jaxnav.cli import (
+    HelpFormatter,
+    Parser,
+    UsageError,
+    add_env_args,
+    add_policy_source,
+    check_policy_source,
+    env_from_args,
+    fail,
+)
 from jaxnav.environment import Environment, EnvParams
 from jaxnav.evaluate import Policy, play, random_policy
 from jaxnav.programs import enable_compilation_cache
@@ -230,11 +239,9 @@ def parser() -> argparse.ArgumentParser:
         description="Draw episodes of a trained run: an animated GIF or a PNG of the paths.",
         formatter_class=HelpFormatter,
     )
-    p.add_argument("run", type=Path, nargs="?", help="run directory written by jaxnav.train")
-    p.add_argument(
-        "--pretrained",
-        metavar="NAME",
-        help="a policy shipped with jaxnav instead of a run (python -m jaxnav.pretrained)",
+    add_policy_source(
+        p,
+        "a policy shipped with jaxnav instead of a run (python -m jaxnav.pretrained)",
     )
     p.add_argument("--episodes", type=int, default=4, help="episodes drawn side by side (1-16)")
     p.add_argument(
@@ -257,8 +264,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     prog = "jaxnav.render"
     try:
         args = parser().parse_args(argv)
-        if (args.run is None) == (args.pretrained is None):
-            raise UsageError("give a run directory or --pretrained NAME, one of them")
+        check_policy_source(args)
         if args.out is None:  # a run's pictures belong with the run, not in the cwd
             args.out = Path(f"{args.pretrained}.gif") if args.run is None else args.run / "traj.gif"
         if not 1 <= args.episodes <= 16:

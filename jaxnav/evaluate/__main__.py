@@ -15,7 +15,16 @@ from pathlib import Path
 from typing import Any
 
 from jaxnav import run_dir
-from jaxnav.cli import HelpFormatter, Parser, UsageError, add_env_args, env_from_args, fail
+from jaxnav.cli import (
+    HelpFormatter,
+    Parser,
+    UsageError,
+    add_env_args,
+    add_policy_source,
+    check_policy_source,
+    env_from_args,
+    fail,
+)
 from jaxnav.evaluate import (
     SEED_STATISTICS,
     evaluate_seeds,
@@ -34,11 +43,9 @@ def parser() -> argparse.ArgumentParser:
         description="Evaluate a trained run (greedy) or the random agent on fresh episodes.",
         formatter_class=HelpFormatter,
     )
-    p.add_argument("run", type=Path, nargs="?", help="run directory written by jaxnav.train")
-    p.add_argument(
-        "--pretrained",
-        metavar="NAME",
-        help="a policy shipped with jaxnav instead of a run (python -m jaxnav.pretrained "
+    add_policy_source(
+        p,
+        "a policy shipped with jaxnav instead of a run (python -m jaxnav.pretrained "
         "lists them); --out is then optional",
     )
     p.add_argument("--env", help="evaluate on another env id (generalization); default: the run's")
@@ -83,8 +90,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise ValueError(f"--episodes {args.episodes}: must be in [1, 10000000]")
         if args.seed < 0:
             raise ValueError(f"--seed {args.seed}: must be non-negative")
-        if (args.run is None) == (args.pretrained is None):
-            raise UsageError("give a run directory or --pretrained NAME, one of them")
+        check_policy_source(args)
         env, overrides = env_from_args(args, args.env)
         if args.run is not None:
             config = run_dir.load_config(args.run)
