@@ -179,7 +179,9 @@ class Trainer:
     def _optimizer(self, hp: HParams) -> optax.GradientTransformation:
         schedule = partial(self.learning_rate, hp)
         opt = optax.adam(schedule) if self.config.optimizer == "adam" else optax.sgd(schedule)
-        return optax.chain(optax.clip_by_global_norm(hp.max_grad_norm), opt)
+        # one flat vector instead of a leaf per layer: far fewer small kernels per update, which
+        # bound PQN's many minibatch steps on a GPU (1.12x env steps/s on RobotNav-v0's preset)
+        return optax.flatten(optax.chain(optax.clip_by_global_norm(hp.max_grad_norm), opt))
 
     def init(self, key: jax.Array, hparams: HParams | None = None) -> TrainState:
         """A fresh training state; ``key`` alone decides every random choice of the run."""
