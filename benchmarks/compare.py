@@ -1,4 +1,4 @@
-"""jaxnav against its peers in one run: env throughput, DQN training time, CLI start-up time.
+"""jaxnav against its peers in one run: env throughput, DQN or PQN training time, CLI start-up.
 
     python -m benchmarks.compare [--num-envs 1,16,256,4096,16384] [--envs NAME,...]
         [--steps 200] [--target-s 0.5] [--rounds 3] [--train-config JSON]
@@ -14,10 +14,11 @@ Sections (each can be left out with ``--sections``):
   is measured against: GridMaze-v0 / gymnax FourRooms-misc, GridMaze-Random-v0 / navix FourRooms
   (both draw a new layout per episode), and the robot (MJX and kinematic backends, a random maze
   per episode) / jaxmarl's JaxNav with one agent. A PNG plots steps/s against num_envs.
-- ``train``: our DQN against rejax's on GridMaze-v0 with the same network, batch, replay ratio
-  and steps (``benchmarks.train_vs_rejax``): wall time, the ratio, time to a greedy success
-  threshold, compile time apart. The config is the CLI's default (the paper's grid
-  experiment) with ``--train-config`` overrides, a JSON object of ``TrainConfig`` fields. It
+- ``train``: our DQN (or PQN, ``"algo": "pqn"`` in ``--train-config``) against rejax's with
+  the same network, batch, replay ratio and steps (``benchmarks.train_vs_rejax``): wall time,
+  the ratio, time to a greedy success threshold, compile time apart. The config is the CLI's
+  default (the paper's grid experiment) with ``--train-config`` overrides, a JSON object of
+  ``TrainConfig`` fields, applied after the preset of its ``env`` and ``algo`` as the CLI does. It
   runs once per network of ``--train-networks``: by default the config's (the paper's
   512-256-128-64) and rejax's default MLP (64, 64). With the large one both spend most of their
   time in the same gradient arithmetic; with the small one, in what surrounds it.
@@ -173,12 +174,16 @@ def plot(rows: list[dict[str, Any]], out: Path, title: str) -> None:
 
 
 def train_config(overrides: str) -> TrainConfig:
-    """The CLI's default (the paper's grid experiment) with ``overrides``, a JSON object of
-    ``TrainConfig`` fields."""
+    """The training CLI's config for ``overrides``, a JSON object of ``TrainConfig`` fields: the
+    preset of its env (default GridMaze-v0, the paper's grid experiment) and algorithm, then the
+    other fields."""
     values = json.loads(overrides)
+    if not isinstance(values, dict):
+        raise ValueError("must be a JSON object of TrainConfig fields")
     if "hidden_sizes" in values:
         values["hidden_sizes"] = tuple(values["hidden_sizes"])
-    config = dataclasses.replace(TrainConfig(), **values)
+    # the env's preset for the algorithm first, as the training CLI applies it
+    config = TrainConfig.for_env(values.pop("env", "GridMaze-v0"), **values)
     config.validate()
     return config
 
@@ -274,11 +279,13 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             run = train_vs_rejax.measure(config, args.eval_episodes, args.threshold)
             result["train"].append(run | {"config": dataclasses.asdict(config)})
             parts.append(
-                f"### DQN training, GridMaze-v0, {config.total_timesteps:,} env steps, "
+                f"### {config.algo.upper()} training, {config.env}, "
+                f"{config.total_timesteps:,} env steps, "
                 f"network {'-'.join(map(str, hidden_sizes))}\n\n" + train_vs_rejax.table(run)
             )
         summary = train_vs_rejax.summary(result["train"])
-        parts.append("### DQN training, each network\n\n" + summary)
+        algo = args.train_config.algo.upper()
+        parts.append(f"### {algo} training, each network\n\n" + summary)
     if "compile" in args.sections:
         entries = list(compile_time.ENTRIES)
         result["compile"] = compile_time.measure(entries, args.compile_timesteps)

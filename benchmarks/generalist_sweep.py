@@ -60,8 +60,18 @@ DEEP = {"num_envs": 4096, "rollout_length": 32, "num_minibatches": 32, "num_epoc
 STEPS = {"total_timesteps": 100_000_000, "td_lambda": 0.9, "log_interval": 4_000_000}
 NAV = {**BEFORE, **LEVERS, "waypoint_cells": 2}  # RobotNav-v0 before the clearance reward
 # 8,192 envs x 32 steps, 64 minibatches x 4 epochs, 100M steps (row 13's shape)
-NAV_TRAIN = {**DEEP, **STEPS, "num_envs": 8192, "num_minibatches": 64, "gamma": 0.99}
+NAV_TRAIN = {**DEEP, **STEPS, "num_envs": 8192, "num_minibatches": 64, "gamma": 0.99, "lr": 1e-3}
 CLEAR = {"clearance_reward": -1.0, "clearance": 0.1}
+# row 19's network at 100M steps (10 logging intervals of 40 iterations), then fewer, larger
+# minibatches: the update is bound by the latency of each gradient step, not by its size
+WIDE_NET = {
+    **NAV_TRAIN,
+    "hidden_sizes": (1024, 512, 256),
+    "compute_dtype": "bfloat16",
+    "total_timesteps": 104_857_600,
+    "log_interval": 10_485_760,
+}
+FEWER = {**WIDE_NET, "num_minibatches": 16, "lr": 2e-3}  # 64 gradient steps of 16,384
 # (label, env overrides, training overrides)
 ROWS: list[tuple[str, dict[str, Any], dict[str, Any]]] = [
     (
@@ -158,7 +168,27 @@ ROWS: list[tuple[str, dict[str, Any], dict[str, Any]]] = [
             "log_interval": 10_000_000,
         },
     ),
+    ("row 19's network, 100M steps", {**NAV, **CLEAR}, WIDE_NET),
+    ("+ 16 minibatches of 16,384", {**NAV, **CLEAR}, {**WIDE_NET, "num_minibatches": 16}),
+    ("+ 16 minibatches of 16,384, lr 2e-3", {**NAV, **CLEAR}, FEWER),
+    (
+        "+ 32 minibatches of 8,192 x 2 epochs",
+        {**NAV, **CLEAR},
+        {**WIDE_NET, "num_minibatches": 32, "num_epochs": 2},
+    ),
+    (
+        "16 minibatches, lr 2e-3, 839M steps (RobotNav-v0 PQN preset)",
+        {**NAV, **CLEAR},
+        {**FEWER, "total_timesteps": 838_860_800},
+    ),
+    (
+        "row 19's network, 419M steps",
+        {**NAV, **CLEAR},
+        {**WIDE_NET, "total_timesteps": 419_430_400},
+    ),
 ]
+# rows from 20 train from jax.random.split(key(0), 1), the key of the first of a batch of seeds
+SPLIT_KEY_ROWS = 20
 TEST_KEY = 1234
 
 
@@ -177,6 +207,8 @@ def run_row(index: int, episodes: int) -> dict[str, Any]:
     # jit(train) on one H100 (benchmarks/results/train_vmap_h100.md); rows 0-19 used jit(train)
     train = jax.jit(jax.vmap(trainer.train))
     keys = jax.random.key(0)[None]
+    if index >= SPLIT_KEY_ROWS:
+        keys = jax.random.split(jax.random.key(0), 1)
     t0 = time.perf_counter()
     compiled = train.lower(keys).compile()
     t1 = time.perf_counter()

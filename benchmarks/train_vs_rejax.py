@@ -1,14 +1,23 @@
-"""Our DQN against rejax's DQN on the same env, network, batch, replay ratio and step count.
+"""Our DQN or PQN against rejax's on the same env, network, batch, replay ratio and step count.
 
-Both train on our ``GridMaze-v0`` (rejax through ``jaxnav.wrappers.GymnaxV0``, the gymnax 0.0.x API
-it expects) with its ``onehot`` observation and one ``TrainConfig``: the same MLP (``hidden_sizes``,
-ReLU, dueling heads when ``dueling``), double-DQN targets when ``double``, ``num_envs`` envs,
-``batch_size``, one gradient step per vectorized env step, ``buffer_size``, ``learning_starts``
-random steps (rejax's ``fill_buffer``), a hard target copy every ``target_update_period`` env steps,
-gamma, Adam with the same linear learning-rate decay, and epsilon from ``eps_start`` to ``eps_end``
-over ``eps_decay_steps``. What stays rejax's own: its squared loss (ours: ``config.loss``),
-elementwise gradient clipping (ours: global norm), and its treatment of a time limit as terminal
-(``done``), as every gymnax-0.0.x trainer does.
+``config.algo`` picks the pair. Both train on our env (rejax through ``jaxnav.wrappers.GymnaxV0``,
+the gymnax 0.0.x API it expects; GridMaze with its ``onehot`` observation) with one ``TrainConfig``.
+DQN: the same MLP (``hidden_sizes``, ReLU, dueling heads when ``dueling``), double-DQN targets when
+``double``, ``num_envs`` envs, ``batch_size``, one gradient step per vectorized env step,
+``buffer_size``, ``learning_starts`` random steps (rejax's ``fill_buffer``), a hard target copy
+every ``target_update_period`` env steps, gamma, Adam with the same linear learning-rate decay, and
+epsilon from ``eps_start`` to ``eps_end`` over ``eps_decay_steps``. What stays rejax's own: its
+squared loss (ours: ``config.loss``), elementwise gradient clipping (ours: global norm), and its
+treatment of a time limit as terminal (``done``), as every gymnax-0.0.x trainer does.
+
+PQN (``config.algo == "pqn"``, any of our envs): the same MLP with LayerNorm before each ReLU
+(rejax's PQN activation) and dueling heads when ``dueling``, ``num_envs`` envs, rollouts of
+``rollout_length`` steps, ``num_epochs`` x ``num_minibatches`` gradient steps per rollout,
+lambda-returns with ``td_lambda`` and gamma, Adam with the same linear learning-rate decay, and
+the same epsilon schedule, observation and reward normalization off. What stays rejax's own:
+float32 matrix products (ours: ``compute_dtype``, so give the config float32 for a like
+comparison), its squared loss, elementwise gradient clipping, a time limit treated as terminal,
+and bootstrapping from the observation after an auto-reset.
 
 Each side is compiled once (reported apart: ``jit(...).lower(...).compile()``) as one
 logging interval of ``log_interval`` env steps (ours: ``Trainer.run(ts, i, 1)``, what the CLI
@@ -50,7 +59,7 @@ def _our_side(trainer: Trainer, key: jax.Array) -> Side:
     interval = jax.jit(lambda ts, log: trainer.run(ts, log, 1), donate_argnums=0)
     interval = interval.lower(state, jnp.int32(0)).compile()
     return {
-        "name": "jaxnav DQN",
+        "name": f"jaxnav {c.algo.upper()}",
         "compile_s": time.perf_counter() - t0,
         "state": state,
         "step": lambda ts, i: interval(ts, jnp.int32(i))[0],
@@ -65,50 +74,70 @@ def _rejax_side(trainer: Trainer, key: jax.Array) -> Side:
     from rejax.networks import DiscreteQNetwork, DuelingQNetwork, EpsilonGreedyPolicy
 
     c = trainer.config
+    qnet = DuelingQNetwork if c.dueling else DiscreteQNetwork
+    pqn = c.algo == "pqn"
 
-    class PaperDQN(rejax.DQN):
-        """rejax's DQN with our network: rejax 0.1.3 fixes its hidden layers at (64, 64)."""
+    def layer_norm_relu(x: jax.Array) -> jax.Array:
+        return nn.relu(nn.LayerNorm()(x))
+
+    class OurNetwork:
+        """rejax's algorithm with our network: rejax 0.1.3 fixes its hidden layers at (64, 64)."""
 
         @classmethod
         def create_agent(cls, config: dict, env: Any, env_params: Any) -> dict[str, Any]:
-            qnet = DuelingQNetwork if c.dueling else DiscreteQNetwork
             agent = EpsilonGreedyPolicy(qnet)(
                 hidden_layer_sizes=tuple(c.hidden_sizes),
                 action_dim=env.action_space(env_params).n,
-                activation=nn.relu,
+                activation=layer_norm_relu if pqn else nn.relu,
             )
             return {"agent": agent}
 
-    chunk = c.iterations_per_log * c.num_envs
-    algo = PaperDQN.create(
-        env=GymnaxV0(trainer.env),
-        env_params=trainer.env_params,
-        ddqn=c.double,
-        num_envs=c.num_envs,
-        total_timesteps=chunk,  # one logging interval per call; the state carries on
-        eval_freq=chunk,
-        skip_initial_evaluation=True,
-        fill_buffer=c.learning_starts,
-        buffer_size=c.buffer_size,
-        batch_size=c.batch_size,
-        num_epochs=c.updates_per_iteration,
-        target_update_freq=c.target_update_period,
-        polyak=1.0 - c.tau,  # rejax: target = polyak * target + (1 - polyak) * online
-        gamma=c.gamma,
-        learning_rate=optax.linear_schedule(c.lr, c.lr_end, trainer.total_updates),
-        max_grad_norm=c.max_grad_norm,
-        eps_start=c.eps_start,
-        eps_end=c.eps_end,
+    chunk = c.iterations_per_log * c.steps_per_iteration
+    common = {
+        "env": GymnaxV0(trainer.env),
+        "env_params": trainer.env_params,
+        "num_envs": c.num_envs,
+        "total_timesteps": chunk,  # one logging interval per call; the state carries on
+        "eval_freq": chunk,
+        "skip_initial_evaluation": True,
+        "gamma": c.gamma,
+        "learning_rate": optax.linear_schedule(c.lr, c.lr_end, trainer.total_updates),
+        "max_grad_norm": c.max_grad_norm,
+        "eps_start": c.eps_start,
+        "eps_end": c.eps_end,
         # rejax decays over exploration_fraction * total_timesteps of global steps
-        exploration_fraction=c.eps_decay_steps / chunk,
-    )
+        "exploration_fraction": c.eps_decay_steps / chunk,
+    }
+    if pqn:
+        cls = type("OurPQN", (OurNetwork, rejax.PQN), {})
+        algo = cls.create(
+            **common,
+            num_steps=c.rollout_length,
+            num_epochs=c.num_epochs,
+            num_minibatches=c.num_minibatches,
+            td_lambda=c.td_lambda,
+            normalize_observations=False,
+            normalize_rewards=False,
+        )
+    else:
+        cls = type("OurDQN", (OurNetwork, rejax.DQN), {})
+        algo = cls.create(
+            **common,
+            ddqn=c.double,
+            fill_buffer=c.learning_starts,
+            buffer_size=c.buffer_size,
+            batch_size=c.batch_size,
+            num_epochs=c.updates_per_iteration,
+            target_update_freq=c.target_update_period,
+            polyak=1.0 - c.tau,  # rejax: target = polyak * target + (1 - polyak) * online
+        )
     algo = algo.replace(eval_callback=lambda algo, ts, rng: jnp.zeros(()))
     t0 = time.perf_counter()
     init = jax.jit(algo.init_state).lower(key).compile()
     state = init(key)
     train = jax.jit(lambda ts: algo.train(train_state=ts)[0]).lower(state).compile()
     return {
-        "name": "rejax DQN",
+        "name": f"rejax {c.algo.upper()}",
         "compile_s": time.perf_counter() - t0,
         "state": state,
         "step": lambda ts, i: train(ts),
@@ -151,7 +180,7 @@ def measure(
     key = jax.random.key(seed)
     sides = [_our_side(trainer, key), _rejax_side(trainer, key)]
     success = _greedy_success(trainer, eval_episodes)
-    chunk = config.iterations_per_log * config.num_envs
+    chunk = config.iterations_per_log * config.steps_per_iteration
     for side in sides:
         side |= {"train_s": 0.0, "curve": []}
     for i in range(config.num_logs):
@@ -181,9 +210,11 @@ def measure(
             "steps_to_threshold": reached[0]["env_steps"] if reached else None,
             "curve": side["curve"],
         }
-    ours, theirs = out["jaxnav DQN"], out["rejax DQN"]
+    ours, theirs = (out[s["name"]] for s in sides)
     params = sides[0]["q_params"](sides[0]["state"])
     return {
+        "algo": config.algo,
+        "env": config.env,
         "hidden_sizes": list(config.hidden_sizes),
         "network_weights": sum(x.size for x in jax.tree.leaves(params)),
         "threshold": threshold,
@@ -220,7 +251,7 @@ def summary(results: list[dict[str, Any]]) -> str:
         "|---|---:|---:|---:|---:|---:|",
     ]
     for r in results:
-        ours, theirs = r["sides"]["jaxnav DQN"], r["sides"]["rejax DQN"]
+        ours, theirs = r["sides"].values()
         reach = [
             "-" if s["time_to_threshold_s"] is None else f"{s['time_to_threshold_s']:.1f}"
             for s in (ours, theirs)

@@ -527,7 +527,7 @@ def run_evaluation(run: Path, seed: int, seeds: list[int]) -> dict[str, Any] | N
     try:
         summary = json.loads((run / "summary.json").read_text())
         row = summary["trained_per_seed"][seeds.index(seed)]
-    except (OSError, KeyError, IndexError, ValueError):
+    except (OSError, KeyError, IndexError, TypeError, ValueError):  # TypeError: not evaluated
         return None
     kept = {k: v for k, v in row.items() if isinstance(v, (int, float)) or v is None}
     # the training CLI evaluates on the episodes of seed 10,000 (runner.finish_run)

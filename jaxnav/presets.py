@@ -65,9 +65,10 @@ ROBOT_PQN: dict[str, Any] = {
 # 6x faster but made only 6,000 gradient steps in 100M env steps and plateaued near 0.4 success;
 # 64 minibatches of 4,096 (256 steps) learn a little more per env step (held-out 0.963 vs
 # 0.951 at 100M) but run at 2.9M env steps/s against 5.0M, and in equal time the 64 larger
-# steps win (839M steps in 167 s: 0.978 held-out; 419M in 144 s: 0.976, 0.81 vs 0.91 on
-# RobotSimple-v0). The wider network (1024-512-256) in bfloat16 took held-out success from 0.91
-# to 0.96 (benchmarks/results/generalist_sweep_h100.md, rows 17-21).
+# steps win (839M steps in 167 s: 0.978 held-out, 0.91 on RobotSimple-v0; 419M in 144 s:
+# 0.976, 0.81). The wider network (1024-512-256) in bfloat16 took held-out success from 0.91
+# to 0.96 (benchmarks/results/generalist_sweep_h100.md: rows 17-19, and 20-25 for the
+# minibatches and steps).
 GENERALIST_PQN: dict[str, Any] = {
     **PQN,
     "hidden_sizes": (1024, 512, 256),

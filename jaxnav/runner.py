@@ -268,8 +268,10 @@ def finish_run(
     shape = metrics["env_steps"].shape
     timing = {"env_steps": metrics["env_steps"], "sps": np.broadcast_to(sps, shape)}
     t0 = time.perf_counter()
-    trained = evaluate_seeds(trainer, params, config.eval_episodes, seed=10_000)
-    rand = evaluate_seeds(trainer, params, config.eval_episodes, 10_000, "random")
+    trained = rand = None  # eval_episodes 0: not measured, so null in summary.json, not zeros
+    if config.eval_episodes:
+        trained = evaluate_seeds(trainer, params, config.eval_episodes, seed=10_000)
+        rand = evaluate_seeds(trainer, params, config.eval_episodes, 10_000, "random")
     eval_s = time.perf_counter() - t0
     _stop_if_signalled(signals, config.num_logs * config.steps_per_log)
 
@@ -281,9 +283,9 @@ def finish_run(
         "env": config.env,
         "seeds": seeds,
         "eval_episodes": config.eval_episodes,
-        "trained": mean_of(trained),
+        "trained": trained and mean_of(trained),
         "trained_per_seed": trained,
-        "random_policy": mean_of(rand),
+        "random_policy": rand and mean_of(rand),
         "compile_s": compile_s,
         "train_s": train_s,
         "eval_s": eval_s,
@@ -291,9 +293,11 @@ def finish_run(
     }
     run_dir.write_json(partial / "summary.json", summary)  # last: marks the run finished
     run_dir.complete(partial, out)  # repeatable through --resume if stopped or refused
-    print_eval_table(
-        config.env, {"trained (greedy)": summary["trained"], "random": summary["random_policy"]}
-    )
+    if trained is None:
+        print("no final evaluation (eval_episodes 0)")
+    else:
+        policies = {"trained (greedy)": summary["trained"], "random": summary["random_policy"]}
+        print_eval_table(config.env, policies)
     print(
         f"compile {compile_s:.1f}s, train {train_s:.1f}s, eval {eval_s:.1f}s, "
         f"total {summary['wall_s']:.1f}s; run saved to {out}"

@@ -129,6 +129,21 @@ def test_train_vs_rejax_same_budget_and_curves() -> None:
     )
 
 
+@pytest.mark.slow
+def test_train_vs_rejax_pqn_pairs_the_same_pqn() -> None:
+    pytest.importorskip("rejax")
+    tiny = {"env_kwargs": {"size": 5}, "hidden_sizes": [16], "algo": "pqn", "num_envs": 4}
+    config = compare.train_config(json.dumps(tiny | {"total_timesteps": 512, "log_interval": 256}))
+    assert config.layer_norm and config.rollout_length == 8  # the PQN preset, then the fields
+    result = train_vs_rejax.measure(config, eval_episodes=8, threshold=0.5)
+    assert list(result["sides"]) == ["jaxnav PQN", "rejax PQN"] and result["algo"] == "pqn"
+    for s in result["sides"].values():
+        assert s["env_steps"] == 512 and [p["env_steps"] for p in s["curve"]] == [256, 512]
+    # the same network on both sides: 16 hidden units with LayerNorm, dueling heads
+    assert result["network_weights"] == 27 * 16 + 2 * 16 + 17 * 5
+    assert "| 16 | 549 |" in train_vs_rejax.summary([result])
+
+
 def test_timed_command_marks_the_line_and_reports_failures(tmp_path: Path) -> None:
     code = "import time; print('a', flush=True); time.sleep(0.3); print('compiled in 1s')"
     run = compile_time.timed_command(["-c", code], tmp_path / "cache", "compiled in")

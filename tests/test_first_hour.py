@@ -164,6 +164,15 @@ def test_progress_line_says_its_success_is_epsilon_greedy(tmp_path, capsys):
     assert "train success (eps-greedy)" in out and "trained (greedy)" in out
 
 
+def test_no_final_evaluation_finishes_with_nulls_not_zeros(tmp_path, capsys):
+    flags = [*TINY_FLAGS, *STEPS, "--eval-episodes", "0", "--out", str(tmp_path / "r")]
+    flags.remove("--quiet")
+    assert train_main(flags) == 0
+    assert "no final evaluation" in capsys.readouterr().out
+    summary = json.loads((tmp_path / "r" / "summary.json").read_text())
+    assert summary["trained"] is summary["random_policy"] is summary["trained_per_seed"] is None
+
+
 def test_robot_evaluation_measures_path_ratio_or_says_n_a(robot_run, capsys):
     assert evaluate_main([str(robot_run), "--episodes", "20"]) == 0
     result = json.loads((robot_run / "eval.json").read_text())
