@@ -58,10 +58,11 @@ def test_the_generalists_pqn_preset_and_the_robot_dqn_one():
     assert (nav.num_envs, nav.rollout_length, nav.num_minibatches, nav.num_epochs) == (
         8192,
         32,
-        64,
+        16,
         4,
     )
-    assert nav.layer_norm and nav.total_timesteps == 209_715_200 and nav.gamma == 0.99
+    assert nav.layer_norm and nav.total_timesteps == 838_860_800 and nav.gamma == 0.99
+    assert nav.lr == 2e-3
     assert nav.hidden_sizes == (1024, 512, 256) and nav.compute_dtype == "bfloat16"
     assert train_defaults("RobotNav-v0", "pqn") == GENERALIST_PQN
     # the other robot envs keep the smaller PQN preset; DQN is the same on every robot env
