@@ -180,7 +180,7 @@ class Trainer:
         schedule = partial(self.learning_rate, hp)
         opt = optax.adam(schedule) if self.config.optimizer == "adam" else optax.sgd(schedule)
         # one flat vector instead of a leaf per layer: far fewer small kernels per update, which
-        # bound PQN's many minibatch steps on a GPU (1.12x env steps/s on RobotNav-v0's preset)
+        # bound PQN's many minibatch steps on a GPU (README, "Training-loop throughput")
         return optax.flatten(optax.chain(optax.clip_by_global_norm(hp.max_grad_norm), opt))
 
     def init(self, key: jax.Array, hparams: HParams | None = None) -> TrainState:
