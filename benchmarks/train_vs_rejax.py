@@ -109,28 +109,27 @@ def _rejax_side(trainer: Trainer, key: jax.Array) -> Side:
         "exploration_fraction": c.eps_decay_steps / chunk,
     }
     if pqn:
-        cls = type("OurPQN", (OurNetwork, rejax.PQN), {})
-        algo = cls.create(
-            **common,
-            num_steps=c.rollout_length,
-            num_epochs=c.num_epochs,
-            num_minibatches=c.num_minibatches,
-            td_lambda=c.td_lambda,
-            normalize_observations=False,
-            normalize_rewards=False,
-        )
+        base = rejax.PQN
+        own = {
+            "num_steps": c.rollout_length,
+            "num_epochs": c.num_epochs,
+            "num_minibatches": c.num_minibatches,
+            "td_lambda": c.td_lambda,
+            "normalize_observations": False,
+            "normalize_rewards": False,
+        }
     else:
-        cls = type("OurDQN", (OurNetwork, rejax.DQN), {})
-        algo = cls.create(
-            **common,
-            ddqn=c.double,
-            fill_buffer=c.learning_starts,
-            buffer_size=c.buffer_size,
-            batch_size=c.batch_size,
-            num_epochs=c.updates_per_iteration,
-            target_update_freq=c.target_update_period,
-            polyak=1.0 - c.tau,  # rejax: target = polyak * target + (1 - polyak) * online
-        )
+        base = rejax.DQN
+        own = {
+            "ddqn": c.double,
+            "fill_buffer": c.learning_starts,
+            "buffer_size": c.buffer_size,
+            "batch_size": c.batch_size,
+            "num_epochs": c.updates_per_iteration,
+            "target_update_freq": c.target_update_period,
+            "polyak": 1.0 - c.tau,  # rejax: target = polyak * target + (1 - polyak) * online
+        }
+    algo = type(f"Our{base.__name__}", (OurNetwork, base), {}).create(**common, **own)
     algo = algo.replace(eval_callback=lambda algo, ts, rng: jnp.zeros(()))
     t0 = time.perf_counter()
     init = jax.jit(algo.init_state).lower(key).compile()
