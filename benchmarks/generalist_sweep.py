@@ -41,7 +41,7 @@ BEFORE = {
     "collision_reward": -5.0,
     "step_reward_start": -0.5,
     "step_reward_end": -1.0,
-    "waypoint_cells": 0,
+    "waypoint_distance": 0.0,
     "clearance_reward": 0.0,
     "clearance": 0.25,
 }
@@ -58,7 +58,7 @@ SMALL_NET = {"hidden_sizes": (512, 256, 128, 64), "compute_dtype": "float32"}
 WIDE = {"num_envs": 16384, "rollout_length": 16, "num_minibatches": 8, "num_epochs": 2, **SMALL_NET}
 DEEP = {"num_envs": 4096, "rollout_length": 32, "num_minibatches": 32, "num_epochs": 4, **SMALL_NET}
 STEPS = {"total_timesteps": 100_000_000, "td_lambda": 0.9, "log_interval": 4_000_000}
-NAV = {**BEFORE, **LEVERS, "waypoint_cells": 2}  # RobotNav-v0 before the clearance reward
+NAV = {**BEFORE, **LEVERS, "waypoint_distance": 1.0}  # RobotNav-v0 before the clearance reward
 # 8,192 envs x 32 steps, 64 minibatches x 4 epochs, 100M steps (row 13's shape)
 NAV_TRAIN = {**DEEP, **STEPS, "num_envs": 8192, "num_minibatches": 64, "gamma": 0.99, "lr": 1e-3}
 CLEAR = {"clearance_reward": -1.0, "clearance": 0.1}
@@ -105,27 +105,27 @@ ROWS: list[tuple[str, dict[str, Any], dict[str, Any]]] = [
     ),
     (
         "before + waypoint 4 cells, 128 updates",
-        {**BEFORE, "waypoint_cells": 4},
+        {**BEFORE, "waypoint_distance": 2.0},
         {**DEEP, **STEPS, "gamma": 0.95},
     ),
     (
         "+ levers + waypoint 4 cells",
-        {**BEFORE, **LEVERS, "waypoint_cells": 4},
+        {**BEFORE, **LEVERS, "waypoint_distance": 2.0},
         {**DEEP, **STEPS, "gamma": 0.99},
     ),
     (
         "+ levers + waypoint 2 cells (RobotNav-v0)",
-        {**BEFORE, **LEVERS, "waypoint_cells": 2},
+        {**BEFORE, **LEVERS, "waypoint_distance": 1.0},
         {**DEEP, **STEPS, "gamma": 0.99},
     ),
     (
         "RobotNav-v0, 200M steps",
-        {**BEFORE, **LEVERS, "waypoint_cells": 2},
+        {**BEFORE, **LEVERS, "waypoint_distance": 1.0},
         {**DEEP, **STEPS, "gamma": 0.99, "total_timesteps": 200_000_000, "log_interval": 8_000_000},
     ),
     (
         "RobotNav-v0, 8,192 envs, 200M steps",
-        {**BEFORE, **LEVERS, "waypoint_cells": 2},
+        {**BEFORE, **LEVERS, "waypoint_distance": 1.0},
         {
             **DEEP,
             **STEPS,
@@ -138,17 +138,17 @@ ROWS: list[tuple[str, dict[str, Any], dict[str, Any]]] = [
     ),
     (
         "RobotNav-v0 + clearance reward -1 within 0.25 m",
-        {**BEFORE, **LEVERS, "waypoint_cells": 2, "clearance_reward": -1.0},
+        {**BEFORE, **LEVERS, "waypoint_distance": 1.0, "clearance_reward": -1.0},
         {**DEEP, **STEPS, "gamma": 0.99},
     ),
     (
         "RobotNav-v0 + clearance reward -3 within 0.25 m",
-        {**BEFORE, **LEVERS, "waypoint_cells": 2, "clearance_reward": -3.0},
+        {**BEFORE, **LEVERS, "waypoint_distance": 1.0, "clearance_reward": -3.0},
         {**DEEP, **STEPS, "gamma": 0.99},
     ),
     (
         "RobotNav-v0 + clearance reward -1 within 0.5 m",
-        {**BEFORE, **LEVERS, "waypoint_cells": 2, "clearance_reward": -1.0, "clearance": 0.5},
+        {**BEFORE, **LEVERS, "waypoint_distance": 1.0, "clearance_reward": -1.0, "clearance": 0.5},
         {**DEEP, **STEPS, "gamma": 0.99},
     ),
     ("RobotNav-v0 + clearance reward -1 within 0.1 m, 8,192 envs", {**NAV, **CLEAR}, NAV_TRAIN),

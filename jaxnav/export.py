@@ -76,7 +76,7 @@ def robot_frame_layout(env: robot_env.RobotNav) -> list[dict[str, Any]]:
         entries += [_entry("heading_sin"), _entry("heading_cos")]
     if c.obs_goal_bearing:
         entries += [_entry("goal_bearing_sin"), _entry("goal_bearing_cos")]
-    if c.waypoint_cells:
+    if c.waypoint_distance:
         entries += [
             _entry("waypoint_bearing_sin"),
             _entry("waypoint_bearing_cos"),
@@ -98,7 +98,7 @@ ROBOT_QUANTITIES = {
     "goal_bearing_sin": "sin of the goal's direction minus the heading",
     "goal_bearing_cos": "cos of the goal's direction minus the heading",
     "waypoint_bearing_sin": "sin of the waypoint's direction minus the heading (the waypoint: "
-    "waypoint_cells cells ahead on a shortest path, from a planner)",
+    "about waypoint_distance_m metres ahead on a shortest path, from a planner)",
     "waypoint_bearing_cos": "cos of the waypoint's direction minus the heading",
     "waypoint_distance": "straight-line distance robot to waypoint in metres",
 }
@@ -235,7 +235,7 @@ def sensor_metadata(env: Any) -> dict[str, Any] | None:
         "robot_radius_m": c.radius,
         "goal_radius_m": c.goal_radius,
         "arena_m": [float(v) for v in env.arena] if c.obs_absolute else None,
-        "waypoint_cells": c.waypoint_cells,
+        "waypoint_distance_m": c.waypoint_distance or None,
     }
 
 
@@ -334,7 +334,7 @@ def flax_params(arrays: dict[str, np.ndarray], network: dict[str, Any]) -> dict[
 CARRIED_FIELDS = {
     "robot": (
         "num_lasers", "laser_fov", "laser_range", "obs_absolute", "obs_proximity",
-        "obs_heading", "obs_goal_bearing", "waypoint_cells", "frames", "speed", "turn_speed",
+        "obs_heading", "obs_goal_bearing", "waypoint_distance", "frames", "speed", "turn_speed",
         "dt", "radius", "backend",
     ),
     "grid": ("size", "obs_mode", "sensor_radius"),

@@ -317,7 +317,7 @@ def test_a_robot_policy_runs_on_a_maze_file_with_its_own_sensors(tmp_path):
     policy = Policy.load(npz)
     maze = str(Path(__file__).resolve().parents[1] / "examples/mazes/rooms.txt")
     env_id, kwargs = export.env_for(policy, "RobotMaze-v0", {"maze_file": maze})
-    assert kwargs["num_lasers"] == 32 and kwargs["waypoint_cells"] == 2
+    assert kwargs["num_lasers"] == 32 and kwargs["waypoint_distance"] == 1.0
     assert kwargs["backend"] == "kinematic" and kwargs["obs_absolute"] is False
     on_maze, stacked = export.to_trainer(policy, env_id, {"maze_file": maze})
     assert on_maze.env.name == "RobotMaze-v0" and on_maze.obs_size == trainer.obs_size

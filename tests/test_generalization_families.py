@@ -30,7 +30,7 @@ def test_another_env_gets_the_generalists_settings_less_its_mazes():
         "laser_fov": 360.0,
         "laser_range": 3.5,
         "obs_absolute": False,
-        "waypoint_cells": 2,
+        "waypoint_distance": 1.0,
         "backend": "kinematic",
         "turn_speed": 2.0,
         "max_steps": 500,
@@ -66,7 +66,7 @@ def test_every_default_family_of_the_generalist_fits_its_policy():
         env, kwargs = family.for_run(RUN)
         assert obs_size(env, **kwargs) == want, family.name
         if env != "RobotNav-v0":
-            assert kwargs["waypoint_cells"] == GENERALIST["waypoint_cells"], family.name
+            assert kwargs["waypoint_distance"] == GENERALIST["waypoint_distance"], family.name
 
 
 def test_a_grid_runs_default_families_are_held_out_layouts_and_its_training_ones():

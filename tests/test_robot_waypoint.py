@@ -1,6 +1,6 @@
-"""The planner's waypoint of the robot env (``waypoint_cells``): the point that many cells ahead
-on a shortest path to the goal, checked against an independent BFS on the maze grid, and its
-(sin, cos, distance) in the observation frame."""
+"""The planner's waypoint of the robot env (``waypoint_distance``): the point that many metres
+(in whole cells of the maze) ahead on a shortest path to the goal, checked against an
+independent BFS on the maze grid, and its (sin, cos, distance) in the observation frame."""
 
 from __future__ import annotations
 
@@ -34,13 +34,13 @@ def make(env_id: str, **overrides):
     return env, params, waypoint
 
 
-# (env id, overrides): the generalist (K = 32 goal cells per maze, waypoint_cells=2) and the
-# paper's complex maze (every cell a goal) with other waypoint distances
+# (env id, overrides): the generalist (K = 32 goal cells per maze, 1 m = 2 cells of 0.5 m) and
+# the paper's complex maze (every cell a goal) with other waypoint distances
 ENVS = [
     ("RobotNav-v0", ()),
-    ("RobotNav-v0", (("waypoint_cells", 5),)),
-    ("RobotComplex-v0", (("waypoint_cells", 1),)),
-    ("RobotComplex-v0", (("waypoint_cells", 3),)),
+    ("RobotNav-v0", (("waypoint_distance", 2.5),)),
+    ("RobotComplex-v0", (("waypoint_distance", 0.5),)),
+    ("RobotComplex-v0", (("waypoint_distance", 1.5),)),
 ]
 ENV_IDS = ["generalist", "generalist-5-cells", "complex-1-cell", "complex-3-cells"]
 
@@ -71,11 +71,11 @@ def episodes(params, n: int, seed: int):
 @pytest.mark.parametrize("env_id, overrides", ENVS, ids=ENV_IDS)
 def test_following_waypoints_walks_a_shortest_path_to_the_goal(env_id, overrides):
     """From random start points (anywhere the robot fits in a free cell, any heading), jumping
-    to each waypoint in turn: every waypoint is a free cell's centre exactly ``waypoint_cells``
-    BFS steps closer to the goal than the last, until the goal itself comes within
-    ``waypoint_cells``; so the goal is reached in ceil(d / waypoint_cells) hops."""
+    to each waypoint in turn: every waypoint is a free cell's centre exactly k =
+    ``waypoint_steps`` BFS steps closer to the goal than the last, until the goal itself comes
+    within k; so the goal is reached in ceil(d / k) hops."""
     env, params, waypoint = make(env_id, **dict(overrides))
-    k = env.config.waypoint_cells
+    k = env.waypoint_steps
     bank = jax.device_get(params.bank)
     rows, cols = bank.grid.shape[1:]
     cs = bank.cell_size
@@ -153,12 +153,12 @@ def waypoint_values(env, params, pose, goal, layout) -> np.ndarray:
     "env_id, overrides, frame",
     [
         ("RobotNav-v0", (), 32 + 1 + 2 + 3),  # lasers, D, goal bearing, waypoint
-        ("RobotComplex-v0", (("waypoint_cells", 3),), 7 + 4 + 1 + 2 + 3),  # + goal, robot xy
+        ("RobotComplex-v0", (("waypoint_distance", 1.5),), 7 + 4 + 1 + 2 + 3),  # + goal, robot xy
         # a short range: the waypoint (up to 1.5 m away) is clipped at 1
-        ("RobotComplex-v0", (("waypoint_cells", 3), ("laser_range", 0.6), ("frames", 2)), 17),
+        ("RobotComplex-v0", (("waypoint_distance", 1.5), ("laser_range", 0.6), ("frames", 2)), 17),
         (
             "RobotComplex-v0",
-            (("waypoint_cells", 1), ("obs_heading", True), ("obs_proximity", False)),
+            (("waypoint_distance", 0.5), ("obs_heading", True), ("obs_proximity", False)),
             7 + 4 + 2 + 2 + 3,
         ),
     ],
@@ -171,7 +171,7 @@ def test_frame_ends_with_the_waypoints_bearing_and_distance(env_id, overrides, f
     assert env.observation_space(params).shape == (c.frames * frame,)
     # the same frame less the waypoint's 3 values without it
     plain, plain_params = jaxnav.make(
-        env_id, **{**dict(overrides), "waypoint_cells": 0, **tiny(env_id)}
+        env_id, **{**dict(overrides), "waypoint_distance": 0.0, **tiny(env_id)}
     )
     step = jax.jit(env.step_env)
     clipped = 0
@@ -189,14 +189,14 @@ def test_frame_ends_with_the_waypoints_bearing_and_distance(env_id, overrides, f
                 np.testing.assert_array_equal(newest[:-3], np.asarray(obs0)[: frame - 3])
             obs, s, *_ = step(KEY, s, jnp.int32(LEFT if t else FORWARD), params)
     assert np.isfinite(np.asarray(obs)).all() and (np.abs(np.asarray(obs)) <= 1).all()
-    assert (clipped > 0) == (c.laser_range < c.waypoint_cells * params.bank.cell_size)
+    assert (clipped > 0) == (c.laser_range < env.waypoint_steps * params.bank.cell_size)
 
 
 @pytest.mark.parametrize("env_id", ["RobotSimple-v0", "RobotComplex-v0"])
-def test_waypoint_cells_zero_leaves_observations_bit_for_bit_unchanged(env_id):
+def test_waypoint_distance_zero_leaves_observations_bit_for_bit_unchanged(env_id):
     default, params = jaxnav.make(env_id, backend="kinematic")
-    off, off_params = jaxnav.make(env_id, backend="kinematic", waypoint_cells=0)
-    assert default.config.waypoint_cells == 0 and off.frame_size == default.frame_size
+    off, off_params = jaxnav.make(env_id, backend="kinematic", waypoint_distance=0)
+    assert default.config.waypoint_distance == 0 and off.frame_size == default.frame_size
     free = np.asarray(params.bank.free_xy[0, : int(params.bank.num_free[0])])
     far = free[np.argmax(np.hypot(*(free - free[0]).T))]  # free cells: reset_to refuses walls
     pose, goal = jnp.array([*free[0], 0.4]), jnp.asarray(far)
@@ -211,17 +211,48 @@ def test_waypoint_cells_zero_leaves_observations_bit_for_bit_unchanged(env_id):
         assert float(ra) == float(rb)
 
 
-@pytest.mark.parametrize("bad", [-1, 65, 1.5, True, "2"])
-def test_out_of_range_waypoint_cells_are_refused(bad):
-    with pytest.raises(ValueError, match=r"^waypoint_cells=.*integer in \[0, 64\]"):
-        env_config("RobotComplex-v0", waypoint_cells=bad)
-    with pytest.raises(ValueError, match="waypoint_cells="):
-        jaxnav.make("RobotNav-v0", num_layouts=2, waypoint_cells=bad)
+@pytest.mark.parametrize("bad", [-1, -0.5, 10.5, float("nan"), float("inf"), True, "2"])
+def test_out_of_range_waypoint_distances_are_refused(bad):
+    with pytest.raises(ValueError, match=r"^waypoint_distance=.*metres in \[0, 10\]"):
+        env_config("RobotComplex-v0", waypoint_distance=bad)
+    with pytest.raises(ValueError, match="waypoint_distance="):
+        jaxnav.make("RobotNav-v0", num_layouts=2, waypoint_distance=bad)
 
 
-def test_waypoint_cells_range_ends_are_accepted():
-    assert env_config("RobotComplex-v0", waypoint_cells=64).waypoint_cells == 64
-    assert env_config("RobotNav-v0", waypoint_cells=0).waypoint_cells == 0
+def test_waypoint_distance_range_ends_are_accepted():
+    assert env_config("RobotComplex-v0", waypoint_distance=10).waypoint_distance == 10
+    assert env_config("RobotNav-v0", waypoint_distance=0).waypoint_distance == 0
+
+
+@pytest.mark.parametrize(
+    "env_id, cell_size, distance, steps",
+    [
+        ("RobotComplex-v0", 0.5, 1.0, 2),  # the generalist's training mazes' cell size
+        ("RobotSimple-v0", 1.0, 1.0, 1),  # 1 m cells: one cell, not two (2 m)
+        ("RobotSimple-v0", 1.0, 1.6, 2),
+        ("RobotMaze-v0", 0.75, 1.0, 1),  # warehouse.txt: nearest whole number of cells
+        ("RobotMaze-v0", 0.75, 0.1, 1),  # at least one cell
+    ],
+)
+def test_the_waypoints_lookahead_is_a_distance_in_whole_cells(env_id, cell_size, distance, steps):
+    """The same ``waypoint_distance`` looks about as far ahead on mazes of any cell size: the
+    nearest whole number of the maze's cells, at least one."""
+    kw = {"maze_file": "examples/mazes/warehouse.txt", "num_wall_slots": 64}
+    env, params = jaxnav.make(
+        env_id, backend="kinematic", waypoint_distance=distance,
+        **(kw if env_id == "RobotMaze-v0" else {}),
+    )  # fmt: skip
+    assert params.bank.cell_size == cell_size and env.waypoint_steps == steps
+
+
+def test_a_waypoint_beyond_64_cells_of_the_maze_is_refused(tmp_path):
+    maze = tmp_path / "fine.txt"
+    maze.write_text("cell_size: 0.1\n" + "..........\n" * 10)
+    with pytest.raises(ValueError, match=r"^waypoint_distance=7: more than 64 cells of the"):
+        env_config(
+            "RobotMaze-v0", maze_file=str(maze), backend="kinematic", radius=0.04, goal_radius=0.2,
+            waypoint_distance=7.0,
+        )  # fmt: skip
 
 
 def test_generalist_settings_reach_the_env():
@@ -229,10 +260,12 @@ def test_generalist_settings_reach_the_env():
     them, and the sensors a policy of it needs elsewhere include the waypoint."""
     env, params, _ = make("RobotNav-v0")
     c = env.config
-    assert (c.waypoint_cells, c.laser_range, c.turn_speed) == (2, 3.5, 2.0)
+    assert (c.waypoint_distance, env.waypoint_steps, c.laser_range, c.turn_speed) == (
+        1.0, 2, 3.5, 2.0
+    )
     assert params.max_steps_in_episode == 500 and params.collision_reward == -10.0
     assert (params.step_reward_start, params.step_reward_end) == (-0.1, -0.2)
-    assert GENERALIST_SENSORS["waypoint_cells"] == GENERALIST["waypoint_cells"] == 2
+    assert GENERALIST_SENSORS["waypoint_distance"] == GENERALIST["waypoint_distance"] == 1.0
     # a turn is 0.2 rad
     start = jnp.append(params.bank.free_xy[0, 1], 0.0)
     _, s = env.reset_to(KEY, params, start, params.bank.free_xy[0, 0])

@@ -174,7 +174,7 @@ def test_the_frame_stack_and_the_waypoint_are_kept_as_documented(robot):
     np.testing.assert_array_equal(second[: -env.frame_size], first[env.frame_size :])
     observe.reset()
     np.testing.assert_array_equal(observe(scans[0], *args[0]), first)
-    if env.config.waypoint_cells:
+    if env.config.waypoint_distance:
         with pytest.raises(ValueError, match="this policy reads a waypoint"):
             observe(scans[0], *args[0][:2])
 

@@ -28,10 +28,10 @@ field of view is an error, unless ``fill_uncovered`` gives a range (metres) for 
 
 Policies trained with ``obs_absolute`` (the paper's layout) also read the goal and the robot
 in the maze's frame (origin at its lower-left corner, metres, divided by the arena's size):
-give pose and goal in that frame. Policies with a waypoint (``waypoint_cells``; RobotNav-v0's)
-read a point a few cells ahead on a shortest path to the goal: a planner on the robot's map
-provides it (e.g. a point of ROS nav2's global plan about ``waypoint_cells`` cells ahead, or
-the goal itself when closer), given as ``waypoint=(x, y)`` in the pose's frame.
+give pose and goal in that frame. Policies with a waypoint (metadata ``waypoint_distance_m``;
+RobotNav-v0's: 1 m) read a point about that far ahead on a shortest path to the goal: a planner
+on the robot's map provides it (e.g. the point of ROS nav2's global plan that distance ahead,
+or the goal itself when closer), given as ``waypoint=(x, y)`` in the pose's frame.
 """
 
 from __future__ import annotations
@@ -166,8 +166,8 @@ class ScanObservation:
         gx, gy = (float(v) for v in goal)
         if self.needs_waypoint and waypoint is None:
             raise ValueError(
-                "this policy reads a waypoint (waypoint_cells): pass waypoint=(x, y), a point "
-                "ahead on a planned path to the goal"
+                "this policy reads a waypoint (waypoint_distance_m): pass waypoint=(x, y), "
+                "a point that far ahead on a planned path to the goal"
             )
         ranges = resample_scan(
             scan, self.beam_angles, self.mount_yaw, self.beam_width, self.fill_uncovered

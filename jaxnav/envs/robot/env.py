@@ -39,7 +39,7 @@ Generalist (``RobotNav-v0``, ``GENERALIST``): ``maze="families"``, a bank of 2,0
 ``generators.py`` (rooms with doors, depth-first corridors 0.5 or 1 m wide, random wall
 segments, pillar halls, some on a smaller sub-arena; 20 x 20 cells of 0.5 m, seed
 ``maze_seed``), on the ``kinematic`` backend, with 32 lasers all around (360 degrees) read to
-3.5 m, ``obs_absolute=False`` and a waypoint 2 cells ahead on a shortest path (frame: 32
+3.5 m, ``obs_absolute=False`` and a waypoint 1 m ahead on a shortest path (frame: 32
 lasers, D, bearing, waypoint bearing and distance; 4 frames, 152 inputs), turns of 0.2 rad a
 step, -10 for a collision, -0.1..-0.2 a step, up to -1 a step for scraping a wall
 (``clearance_reward`` within ``clearance`` 0.1 m of free space), 40 wall slots (the families
@@ -97,6 +97,8 @@ BACKENDS = ("kinematic", "mjx")
 LASER_SCALE = 10.0 * math.sqrt(2.0)  # Table I: sensors normalized by their maximum variation
 MAX_BANK_CELLS = 4_000_000  # random mazes are generated in Python: about 25 s at this size
 MAX_STEP_CELLS = 100  # a control step may cross at most this many cells (bounds the sub-steps)
+MAX_WAYPOINT_DISTANCE = 10.0  # metres
+MAX_WAYPOINT_CELLS = 64  # the lookahead is unrolled, one step per cell
 NUM_LASERS = 7  # the paper's; RobotConfig.num_lasers' default
 # the geodesic table's bytes (int16[B, goals, rows, cols]); beyond this a bank is refused, with
 # a hint to keep fewer goal cells per maze (num_goal_cells)
@@ -146,9 +148,11 @@ class RobotConfig:
     obs_proximity: bool = True
     obs_heading: bool = False
     obs_goal_bearing: bool = True  # (sin, cos) of the goal's direction relative to the heading
-    # a global planner's hint: (sin, cos) of the direction to the point ``waypoint_cells`` cells
-    # ahead on a shortest path through the maze's free cells, and its distance / laser_range
-    waypoint_cells: int = 0  # 0: no waypoint in the frame
+    # a global planner's hint: (sin, cos) of the direction to the point about
+    # ``waypoint_distance`` metres ahead on a shortest path through the maze's free cells (that
+    # many metres in whole cells, at least one), and its distance / laser_range; in metres, not
+    # cells, so that the hint means the same on mazes of any cell size
+    waypoint_distance: float = 0.0  # 0: no waypoint in the frame
     goal_reward: float = 10.0
     collision_reward: float = -5.0
     step_reward_start: float = -0.5
@@ -218,7 +222,6 @@ class RobotConfig:
             ("mjx_substeps", 1, 1000),
             ("max_steps", 1, 1_000_000),
             ("frames", 1, 64),
-            ("waypoint_cells", 0, 64),
             ("num_lasers", 1, 1024),
             ("maze_seed", 0, 2**32 - 1),
             ("num_goal_cells", 0, 1_000_000),
@@ -232,6 +235,12 @@ class RobotConfig:
             v = getattr(self, name)
             if not _positive(v):
                 raise ValueError(f"{name}={v!r}: must be a positive number")
+        w = self.waypoint_distance
+        if not (w == 0 or _positive(w)) or w > MAX_WAYPOINT_DISTANCE:
+            raise ValueError(
+                f"waypoint_distance={w!r}: must be a number of metres in "
+                f"[0, {MAX_WAYPOINT_DISTANCE:g}] (0: no waypoint)"
+            )
         if not _positive(self.laser_fov) or self.laser_fov > 360:
             raise ValueError(
                 f"laser_fov={self.laser_fov!r}: must be a number of degrees in (0, 360]"
@@ -289,6 +298,11 @@ class RobotConfig:
                 raise ValueError(
                     f"{name}={getattr(self, name)}: the robot must fit in a {maze.cell_size:g} m "
                     f"cell of the {maze.name} maze (radius < {maze.cell_size / 2:g})"
+                )
+            if self.waypoint_distance > MAX_WAYPOINT_CELLS * maze.cell_size:
+                raise ValueError(
+                    f"waypoint_distance={self.waypoint_distance:g}: more than "
+                    f"{MAX_WAYPOINT_CELLS} cells of the {maze.name} maze ({maze.cell_size:g} m)"
                 )
             if self.max_speed * self.dt > MAX_STEP_CELLS * maze.cell_size:
                 raise ValueError(
@@ -373,7 +387,7 @@ GENERALIST: dict[str, Any] = {
     "laser_fov": 360.0,
     "laser_range": 3.5,  # a small indoor lidar's; walls a step away read ~0.1, not ~0.01
     "obs_absolute": False,
-    "waypoint_cells": 2,
+    "waypoint_distance": 1.0,
     "turn_speed": 2.0,  # 0.2 rad a step: headings line up with 0.5 m corridors
     "max_steps": 500,
     "collision_reward": -10.0,
@@ -389,7 +403,7 @@ GENERALIST: dict[str, Any] = {
 # ``jaxnav.make("RobotMaze-v0", maze_file=path, num_wall_slots=40, **GENERALIST_SENSORS)``
 GENERALIST_SENSORS: dict[str, Any] = {
     k: GENERALIST[k]
-    for k in ("num_lasers", "laser_fov", "laser_range", "obs_absolute", "waypoint_cells")
+    for k in ("num_lasers", "laser_fov", "laser_range", "obs_absolute", "waypoint_distance")
 }
 
 
@@ -451,6 +465,10 @@ class RobotNav(Environment[RobotState, RobotParams]):
         c = self.config
         self._bank = mazes.stack_mazes(maze_list, self.num_wall_slots, c.num_goal_cells or None)
         self.arena = np.asarray(self._bank.size_m, np.float32)
+        # the waypoint's lookahead in whole cells of this maze (0: none)
+        self.waypoint_steps = (
+            max(1, round(c.waypoint_distance / self._bank.cell_size)) if c.waypoint_distance else 0
+        )
         self.angles = c.laser_angles
         # enough sub-steps that one moves less than the thinnest wall's half size
         thinnest = self._bank.walls.min_half_size()
@@ -484,7 +502,7 @@ class RobotNav(Environment[RobotState, RobotParams]):
         absolute = 4 * c.obs_absolute  # goal (x, y), robot (x, y)
         return (
             c.num_lasers + absolute + c.obs_proximity + 2 * c.obs_heading + 2 * c.obs_goal_bearing
-            + 3 * (c.waypoint_cells > 0)
+            + 3 * (c.waypoint_distance > 0)
         )
 
     def observation_space(self, params: RobotParams | None = None) -> spaces.Box:
@@ -785,7 +803,7 @@ class RobotNav(Environment[RobotState, RobotParams]):
     def waypoint(
         self, pose: jax.Array, goal: jax.Array, layout: jax.Array, params: RobotParams
     ) -> jax.Array:
-        """The point ``waypoint_cells`` cells ahead of the robot's cell on a shortest path to
+        """The point ``waypoint_steps`` cells ahead of the robot's cell on a shortest path to
         the goal (descending the BFS distances, 4-neighbour steps): a cell centre, or the goal
         itself once the path reaches the goal's cell or where no path is known."""
         bank = params.bank
@@ -795,7 +813,7 @@ class RobotNav(Environment[RobotState, RobotParams]):
         known = jnp.where(steps >= 0, steps.astype(jnp.int32), far)
         padded = jnp.pad(known, 1, constant_values=far)
         start = row, col = self._cell(pose[:2], bank)
-        for _ in range(self.config.waypoint_cells):  # a few static steps
+        for _ in range(self.waypoint_steps):  # a few static steps
             # the neighbours up, down, left, right (padding stands for the arena's outside)
             around = jnp.stack(
                 [padded[row, col + 1], padded[row + 2, col + 1], padded[row + 1, col],
@@ -834,7 +852,7 @@ class RobotNav(Environment[RobotState, RobotParams]):
             parts.append(jnp.stack([jnp.sin(pose[2]), jnp.cos(pose[2])]))
         if self.config.obs_goal_bearing:
             parts.append(_bearing(goal - pose[:2], pose[2]))
-        if c.waypoint_cells:
+        if self.waypoint_steps:
             to_waypoint = self.waypoint(pose, goal, layout, params) - pose[:2]
             parts.append(_bearing(to_waypoint, pose[2]))
             parts.append(jnp.minimum(jnp.linalg.norm(to_waypoint) / c.laser_range, 1.0)[None])
