@@ -236,6 +236,7 @@ def sensor_metadata(env: Any) -> dict[str, Any] | None:
         "goal_radius_m": c.goal_radius,
         "arena_m": [float(v) for v in env.arena] if c.obs_absolute else None,
         "waypoint_distance_m": c.waypoint_distance or None,
+        "waypoint_moves": c.waypoint_moves if c.waypoint_distance else None,
     }
 
 
@@ -334,8 +335,8 @@ def flax_params(arrays: dict[str, np.ndarray], network: dict[str, Any]) -> dict[
 CARRIED_FIELDS = {
     "robot": (
         "num_lasers", "laser_fov", "laser_range", "obs_absolute", "obs_proximity",
-        "obs_heading", "obs_goal_bearing", "waypoint_distance", "frames", "speed", "turn_speed",
-        "dt", "radius", "backend",
+        "obs_heading", "obs_goal_bearing", "waypoint_distance", "waypoint_moves", "frames",
+        "speed", "turn_speed", "dt", "radius", "backend",
     ),
     "grid": ("size", "obs_mode", "sensor_radius"),
 }  # fmt: skip

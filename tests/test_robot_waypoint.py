@@ -42,6 +42,7 @@ ENVS = [
     ("RobotComplex-v0", (("waypoint_distance", 0.5),)),
     ("RobotComplex-v0", (("waypoint_distance", 1.5),)),
 ]
+STRAIGHT = (("waypoint_moves", 4),)  # the planner's moves up, down, left and right only
 ENV_IDS = ["generalist", "generalist-5-cells", "complex-1-cell", "complex-3-cells"]
 
 
@@ -68,26 +69,33 @@ def episodes(params, n: int, seed: int):
     return out
 
 
+def start_poses(env, params, n: int, seed: int):
+    """``(layout, pose, goal)`` arrays of ``n`` episodes: starts anywhere the robot fits in a
+    free cell (as far off the centre as its radius allows), random headings."""
+    eps = episodes(params, n, seed=seed)
+    cs = params.bank.cell_size
+    layout = np.array([e[0] for e in eps], np.int32)
+    goal = np.stack([e[2] for e in eps]).astype(np.float32)
+    rng = np.random.default_rng(1)
+    room = cs / 2 - env.config.radius
+    start = np.stack([e[1] for e in eps]) + rng.uniform(-room, room, (len(eps), 2))
+    pose = np.concatenate([start, rng.uniform(-np.pi, np.pi, (len(eps), 1))], 1)
+    return layout, pose.astype(np.float32), goal
+
+
 @pytest.mark.parametrize("env_id, overrides", ENVS, ids=ENV_IDS)
-def test_following_waypoints_walks_a_shortest_path_to_the_goal(env_id, overrides):
-    """From random start points (anywhere the robot fits in a free cell, any heading), jumping
-    to each waypoint in turn: every waypoint is a free cell's centre exactly k =
-    ``waypoint_steps`` BFS steps closer to the goal than the last, until the goal itself comes
-    within k; so the goal is reached in ceil(d / k) hops."""
-    env, params, waypoint = make(env_id, **dict(overrides))
+def test_following_straight_waypoints_walks_a_shortest_path_to_the_goal(env_id, overrides):
+    """With 4 moves, from random start points (anywhere the robot fits in a free cell, any
+    heading), jumping to each waypoint in turn: every waypoint is a free cell's centre exactly
+    k = ``waypoint_steps`` BFS steps closer to the goal than the last, until the goal itself
+    comes within k; so the goal is reached in ceil(d / k) hops."""
+    env, params, waypoint = make(env_id, **dict(overrides + STRAIGHT))
     k = env.waypoint_steps
     bank = jax.device_get(params.bank)
     rows, cols = bank.grid.shape[1:]
     cs = bank.cell_size
-    eps = episodes(params, 48, seed=k)
-    layout = np.array([e[0] for e in eps], np.int32)
-    goal = np.stack([e[2] for e in eps]).astype(np.float32)
-    rng = np.random.default_rng(1)
-    # off-centre starts, as far from the centre as the robot's radius allows, random headings
-    room = cs / 2 - env.config.radius
-    start = np.stack([e[1] for e in eps]) + rng.uniform(-room, room, (len(eps), 2))
-    pose = np.concatenate([start, rng.uniform(-np.pi, np.pi, (len(eps), 1))], 1)
-    pose = pose.astype(np.float32)
+    layout, pose, goal = start_poses(env, params, 48, seed=k)
+    eps = layout
     # the reference: BFS steps to each episode's goal cell, on its maze's grid
     ref = [
         bfs_distances(np.asarray(bank.grid[lay]), cell_of(g, rows, cs))
@@ -116,6 +124,65 @@ def test_following_waypoints_walks_a_shortest_path_to_the_goal(env_id, overrides
             pose[i, :2] = wp[i]
     assert done.all()
     np.testing.assert_array_equal(hops, -(-steps // k))  # ceil(d / k)
+
+
+@pytest.mark.parametrize("env_id, overrides", ENVS, ids=ENV_IDS)
+def test_following_diagonal_waypoints_reaches_the_goal_without_cutting_corners(env_id, overrides):
+    """With 8 moves (the default), jumping to each waypoint in turn: every waypoint is a free
+    cell's centre at most k = ``waypoint_steps`` king moves away (Chebyshev distance), between k
+    and 2k BFS steps closer to the goal (a diagonal move saves two straight ones), and no move
+    of the descent cuts a wall's corner; the goal is reached in at most ceil(d / k) hops."""
+    env, params, waypoint = make(env_id, **dict(overrides))
+    assert env.config.waypoint_moves == 8
+    k = env.waypoint_steps
+    bank = jax.device_get(params.bank)
+    rows, cols = bank.grid.shape[1:]
+    cs = bank.cell_size
+    layout, pose, goal = start_poses(env, params, 48, seed=k)
+    ref = [
+        bfs_distances(np.asarray(bank.grid[lay]), cell_of(g, rows, cs))
+        for lay, g in zip(layout, goal, strict=True)
+    ]
+    steps = np.array([r[cell_of(p, rows, cs)] for r, p in zip(ref, pose, strict=True)])
+    hops = np.zeros(len(layout), int)
+    done = np.zeros(len(layout), bool)
+    diagonal = 0
+    for _ in range(int(steps.max()) + 2):
+        if done.all():
+            break
+        wp = np.asarray(waypoint(jnp.asarray(pose), jnp.asarray(goal), jnp.asarray(layout), params))
+        for i in np.flatnonzero(~done):
+            hops[i] += 1
+            here = cell_of(pose[i], rows, cs)
+            left = ref[i][here]
+            if np.array_equal(wp[i], goal[i]):
+                done[i] = True
+                continue
+            there = cell_of(wp[i], rows, cs)
+            assert not bank.grid[layout[i], there[0], there[1]], f"episode {i}: in a wall"
+            assert max(abs(there[0] - here[0]), abs(there[1] - here[1])) <= k
+            assert k <= left - ref[i][there] <= 2 * k, f"episode {i}: {left} -> {ref[i][there]}"
+            diagonal += left - ref[i][there] > k
+            pose[i, :2] = wp[i]
+    assert done.all() and (hops <= -(-steps // k)).all()
+    assert diagonal > 0  # the mazes have room for diagonal moves
+
+
+def test_a_diagonal_move_never_cuts_a_walls_corner(tmp_path):
+    """On 1 m cells with one wall cell at (row 1, col 2) and the goal in the top-right cell
+    (0, 3): from (2, 2), just below the wall, the diagonal to (1, 3) would cut the wall's
+    corner, so the planner steps right to (2, 3); from (3, 0), with both cells beside the
+    diagonal free, it steps diagonally to (2, 1)."""
+    maze = tmp_path / "corner.txt"
+    maze.write_text("cell_size: 1.0\n....\n..#.\n....\n....\n")
+    env, params = jaxnav.make(
+        "RobotMaze-v0", maze_file=str(maze), backend="kinematic", waypoint_distance=1.0
+    )
+    goal = jnp.asarray([3.5, 3.5], jnp.float32)
+    below_wall = env.waypoint(jnp.asarray([2.5, 1.5, 0.0]), goal, jnp.int32(0), params)
+    assert cell_of(np.asarray(below_wall), 4, 1.0) == (2, 3)
+    open_corner = env.waypoint(jnp.asarray([0.5, 0.5, 0.0]), goal, jnp.int32(0), params)
+    assert cell_of(np.asarray(open_corner), 4, 1.0) == (2, 1)
 
 
 def test_waypoint_is_the_goal_where_no_path_is_known():
@@ -209,6 +276,12 @@ def test_waypoint_distance_zero_leaves_observations_bit_for_bit_unchanged(env_id
         b, sb, rb, *_ = off.step_env(KEY, sb, action, off_params)
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
         assert float(ra) == float(rb)
+
+
+@pytest.mark.parametrize("bad", [0, 6, True, "8", 8.0])
+def test_waypoint_moves_other_than_4_or_8_are_refused(bad):
+    with pytest.raises(ValueError, match=r"^waypoint_moves=.*must be 4 or 8"):
+        env_config("RobotComplex-v0", waypoint_moves=bad)
 
 
 @pytest.mark.parametrize("bad", [-1, -0.5, 10.5, float("nan"), float("inf"), True, "2"])

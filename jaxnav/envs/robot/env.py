@@ -153,6 +153,10 @@ class RobotConfig:
     # many metres in whole cells, at least one), and its distance / laser_range; in metres, not
     # cells, so that the hint means the same on mazes of any cell size
     waypoint_distance: float = 0.0  # 0: no waypoint in the frame
+    # the planner's moves: 4 (up, down, left, right) or 8 (also diagonal, where both cells beside
+    # the diagonal are free). On 1 m cells a 4-move path's next cell flips between "up" and
+    # "right" as the robot crosses a cell edge, and a greedy policy can dither there forever
+    waypoint_moves: int = 8
     goal_reward: float = 10.0
     collision_reward: float = -5.0
     step_reward_start: float = -0.5
@@ -235,6 +239,8 @@ class RobotConfig:
             v = getattr(self, name)
             if not _positive(v):
                 raise ValueError(f"{name}={v!r}: must be a positive number")
+        if type(self.waypoint_moves) is not int or self.waypoint_moves not in (4, 8):
+            raise ValueError(f"waypoint_moves={self.waypoint_moves!r}: must be 4 or 8")
         w = self.waypoint_distance
         if not (w == 0 or _positive(w)) or w > MAX_WAYPOINT_DISTANCE:
             raise ValueError(
@@ -388,6 +394,7 @@ GENERALIST: dict[str, Any] = {
     "laser_range": 3.5,  # a small indoor lidar's; walls a step away read ~0.1, not ~0.01
     "obs_absolute": False,
     "waypoint_distance": 1.0,
+    "waypoint_moves": 8,
     "turn_speed": 2.0,  # 0.2 rad a step: headings line up with 0.5 m corridors
     "max_steps": 500,
     "collision_reward": -10.0,
@@ -403,7 +410,10 @@ GENERALIST: dict[str, Any] = {
 # ``jaxnav.make("RobotMaze-v0", maze_file=path, num_wall_slots=40, **GENERALIST_SENSORS)``
 GENERALIST_SENSORS: dict[str, Any] = {
     k: GENERALIST[k]
-    for k in ("num_lasers", "laser_fov", "laser_range", "obs_absolute", "waypoint_distance")
+    for k in (
+        "num_lasers", "laser_fov", "laser_range", "obs_absolute", "waypoint_distance",
+        "waypoint_moves",
+    )  # fmt: skip
 }
 
 
@@ -803,8 +813,9 @@ class RobotNav(Environment[RobotState, RobotParams]):
     def waypoint(
         self, pose: jax.Array, goal: jax.Array, layout: jax.Array, params: RobotParams
     ) -> jax.Array:
-        """The point ``waypoint_steps`` cells ahead of the robot's cell on a shortest path to
-        the goal (descending the BFS distances, 4-neighbour steps): a cell centre, or the goal
+        """The point ``waypoint_steps`` moves ahead of the robot's cell on a shortest path to
+        the goal (descending the 4-neighbour BFS distances by ``waypoint_moves`` moves, each to
+        the lowest neighbour, straight moves first among equals): a cell centre, or the goal
         itself once the path reaches the goal's cell or where no path is known."""
         bank = params.bank
         rows = bank.grid.shape[1]
@@ -813,16 +824,20 @@ class RobotNav(Environment[RobotState, RobotParams]):
         known = jnp.where(steps >= 0, steps.astype(jnp.int32), far)
         padded = jnp.pad(known, 1, constant_values=far)
         start = row, col = self._cell(pose[:2], bank)
+        # up, down, left, right, then the diagonals (padding stands for the arena's outside)
+        d_row = jnp.array([-1, 1, 0, 0, -1, -1, 1, 1][: self.config.waypoint_moves])
+        d_col = jnp.array([0, 0, -1, 1, -1, 1, -1, 1][: self.config.waypoint_moves])
         for _ in range(self.waypoint_steps):  # a few static steps
-            # the neighbours up, down, left, right (padding stands for the arena's outside)
-            around = jnp.stack(
-                [padded[row, col + 1], padded[row + 2, col + 1], padded[row + 1, col],
-                 padded[row + 1, col + 2]]
-            )  # fmt: skip
+            around = padded[row + 1 + d_row, col + 1 + d_col]
+            # a diagonal move needs both cells beside it free: no cutting a wall's corner
+            beside_free = (padded[row + 1 + d_row, col + 1] < far) & (
+                padded[row + 1, col + 1 + d_col] < far
+            )
+            around = jnp.where((d_row == 0) | (d_col == 0) | beside_free, around, far)
             best = jnp.argmin(around)
             better = around[best] < known[row, col]
-            row = jnp.where(better, row + jnp.array([-1, 1, 0, 0])[best], row)
-            col = jnp.where(better, col + jnp.array([0, 0, -1, 1])[best], col)
+            row = jnp.where(better, row + d_row[best], row)
+            col = jnp.where(better, col + d_col[best], col)
         centre = jnp.stack([(col + 0.5), (rows - 0.5 - row)]).astype(jnp.float32) * bank.cell_size
         use_goal = (known[row, col] == 0) | (steps[start] < 0)
         return jnp.where(use_goal, goal, centre)
