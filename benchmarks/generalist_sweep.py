@@ -197,6 +197,18 @@ ROWS: list[tuple[str, dict[str, Any], dict[str, Any]]] = [
         {**NAV, **CLEAR, "waypoint_moves": 8},
         {**FEWER, "total_timesteps": 838_860_800},
     ),
+    # collisions left are mostly corners clipped between beams 11.25 degrees apart, by moves
+    # of 0.25 m where a 0.5 m corridor leaves 0.1 m each side
+    (
+        "row 26 + 64 lasers",
+        {**NAV, **CLEAR, "waypoint_moves": 8, "num_lasers": 64},
+        {**FEWER, "total_timesteps": 838_860_800},
+    ),
+    (
+        "row 26 at 1.5 m/s (0.15 m a step), 800 steps",
+        {**NAV, **CLEAR, "waypoint_moves": 8, "speed": 1.5, "max_steps": 800},
+        {**FEWER, "total_timesteps": 838_860_800},
+    ),
 ]
 # rows from 20 train from jax.random.split(key(0), 1), the key of the first of a batch of seeds
 SPLIT_KEY_ROWS = 20
