@@ -33,7 +33,8 @@ def test_another_env_gets_the_generalists_settings_less_its_mazes():
         "waypoint_distance": 1.0,
         "backend": "kinematic",
         "turn_speed": 2.0,
-        "max_steps": 500,
+        "max_steps": 800,
+        "speed": 1.5,
         "collision_reward": -10.0,
     }
     assert {k: kwargs.get(k) for k in want} == want

@@ -336,7 +336,8 @@ def test_generalist_settings_reach_the_env():
     assert (c.waypoint_distance, env.waypoint_steps, c.laser_range, c.turn_speed) == (
         1.0, 2, 3.5, 2.0
     )
-    assert params.max_steps_in_episode == 500 and params.collision_reward == -10.0
+    assert params.max_steps_in_episode == 800 and params.collision_reward == -10.0
+    assert c.speed == 1.5
     assert (params.step_reward_start, params.step_reward_end) == (-0.1, -0.2)
     assert GENERALIST_SENSORS["waypoint_distance"] == GENERALIST["waypoint_distance"] == 1.0
     # a turn is 0.2 rad
