@@ -42,10 +42,13 @@ def run_variant(overrides: dict, seeds: int, eval_episodes: int, base: dict) -> 
 
     per_seed = evaluate_seeds(trainer, ts.params, eval_episodes, seed=12345)
     curve = np.asarray(metrics["success_rate"]).mean(axis=0).round(3).tolist()
+    env_steps = int(np.asarray(metrics["env_steps"])[:, -1].sum())  # all seeds
     return {
         "overrides": overrides,
         "compile_s": compile_s,
         "train_s": train_s,
+        "env_steps": env_steps,
+        "env_steps_per_s": env_steps / train_s,
         "per_seed": per_seed,
         "success_mean": float(np.mean([s["success_rate"] for s in per_seed])),
         "success_min": float(np.min([s["success_rate"] for s in per_seed])),
@@ -66,8 +69,9 @@ def main(argv: list[str] | None = None) -> list[dict]:
     base = json.loads(args.base)
     rows = []
     lines = [
-        "| variant | success mean | success min | path ratio | compile s | train s |",
-        "|---|---|---|---|---|---|",
+        "| variant | success mean | success min | path ratio | compile s | train s "
+        "| env steps/s (all seeds) |",
+        "|---|---|---|---|---|---|---|",
     ]
     print("\n".join(lines), flush=True)
     for name, spec in args.variant:
@@ -76,7 +80,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
         rows.append(r)
         lines.append(
             f"| {name} | {r['success_mean']:.3f} | {r['success_min']:.3f} | "
-            f"{format_value(r['path_ratio_mean'])} | {r['compile_s']:.1f} | {r['train_s']:.1f} |"
+            f"{format_value(r['path_ratio_mean'])} | {r['compile_s']:.1f} | {r['train_s']:.1f} | "
+            f"{r['env_steps_per_s']:,.0f} |"
         )
         print(lines[-1], flush=True)
     meta = {"machine": machine_info(), "base": base, "seeds": args.seeds}
