@@ -1,7 +1,9 @@
 """The DQN's replay ratio across env counts, measured through the training command a user runs.
 
     python -m benchmarks.dqn_replay_ratio [--num-envs 16,64,256,1024] [--seeds 2]
-        [--variants ratio,one-update] [--out benchmarks/results/dqn_replay_ratio_cpu.json]
+        [--variants ratio,one-update] [--out benchmarks/results/dqn_replay_ratio.json]
+
+(this CPU's rows: ``--out benchmarks/results/dqn_replay_ratio_cpu.json``)
 
 Each row is ``python -m jaxnav.train --env GridMaze-v0`` (the paper's grid DQN: TrainConfig's
 defaults) with ``--num-envs N --num-seeds S`` and nothing else changed but the run length:
@@ -87,11 +89,15 @@ def markdown(result: dict[str, Any]) -> str:
     m = result["machine"]
     lines = [
         "# DQN replay ratio across env counts (benchmarks/dqn_replay_ratio.py)\n",
+        f"`{result['command']}`: each row is",
         f"`python -m jaxnav.train --env {ENV} --num-envs N --num-seeds {result['seeds']} "
         f"{' '.join(RUN)} --replay-ratio R`; greedy success of the command's own evaluation "
         "(summary.json, 1000 episodes per seed), mean over seeds with each seed in brackets; "
         "train s: the command's training time for all seeds together (vmapped), compile "
-        "excluded.\n",
+        "excluded. Variants: `ratio`, the default replay ratio 8 (8 * N / 128 gradient steps "
+        "of 128 per iteration); `one-update`, replay ratio 128 / N, one gradient step per "
+        "iteration, what the defaults gave before replay_ratio replaced updates_per_iteration "
+        "(at N = 16 it is the ratio row).\n",
         f"Machine: {m['platform']}, {m['cpu_count']} CPU cores ({m['backend']}), jax "
         f"{m['jax_version']}, shared with other jobs (1-minute load average before each run in "
         f"the last column); {m['date'][:10]}.\n",
@@ -121,7 +127,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     variants = [v for v in args.variants.split(",") if v]
     if any(v not in VARIANTS for v in variants) or any(245_760 % n for n in counts):
         ap.error(f"variants of {VARIANTS}; env counts dividing 245760")
-    result: dict[str, Any] = {"machine": machine_info(), "seeds": args.seeds, "rows": []}
+    given = sys.argv[1:] if argv is None else argv
+    command = " ".join(["python -m benchmarks.dqn_replay_ratio", *given])
+    result: dict[str, Any] = {"machine": machine_info(), "command": command, "seeds": args.seeds}
+    result["rows"] = []
     with tempfile.TemporaryDirectory() as tmp:
         for n in counts:
             for v in variants:

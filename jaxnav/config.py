@@ -332,5 +332,6 @@ def upgrade_saved(d: dict[str, Any]) -> dict[str, Any]:
         if "replay_ratio" not in d:
             batch = d.get("batch_size", TrainConfig.batch_size)
             envs = d.get("num_envs", TrainConfig.num_envs)
-            d["replay_ratio"] = u * batch / envs
+            # (an edited num_envs of 0: left to validate() to name)
+            d["replay_ratio"] = u * batch / envs if envs else u
     return d
