@@ -33,7 +33,8 @@ from typing import Any
 from benchmarks.common import write_results
 
 DEFAULT_TRAIN_ARGS = (
-    "--total-timesteps 48000 --num-envs 64 --batch-size 256 --eval-episodes 100 --quiet"
+    "--total-timesteps 48000 --num-envs 64 --batch-size 256 --replay-ratio 4 --eval-episodes 100 "
+    "--quiet"
 )
 SPLITS = ("seeds", "envs")
 # run in a child: a GPU backend started here would hold the GPUs' memory the runs need

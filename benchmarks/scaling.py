@@ -84,6 +84,8 @@ def train_config(args: argparse.Namespace, devices: int, split_envs: bool) -> Tr
         num_seeds=1 if split_envs else devices,
         devices=devices,
         batch_size=args.batch_per_device * shards,
+        # one gradient step of the batch an iteration, whatever the env count
+        replay_ratio=args.batch_per_device / args.train_envs_per_device,
         buffer_size=num_envs * 64,
         learning_starts=num_envs * 3,  # n_step <= 3: learning from the first iteration
         log_interval=num_envs * args.iterations,

@@ -3,7 +3,7 @@
     python -m benchmarks.train_throughput [--algos dqn,pqn] [--env GridMaze-v0]
         [--env-arg KEY=VALUE ...] [--num-envs 16,64,256] [--iterations 50]
         [--rollout-length L] [--num-minibatches M] [--num-epochs E]      (PQN)
-        [--batch-size B] [--updates-per-iteration U]                      (DQN)
+        [--batch-size B] [--replay-ratio R]                               (DQN)
         [--hidden-sizes W,W,...] [--compute-dtype float32|bfloat16] [--seed 0]
         [--out benchmarks/results/train_throughput.json]
 
@@ -35,7 +35,9 @@ consecutive chunks of a training run do.
   ``batch_size``, sampled once from the filled buffer), rolled by one row per step so XLA
   cannot hoist loop-invariant work, as many steps as the training run takes -> updates/s,
   and the env steps/s training would reach if updates were all it did:
-  updates/s * steps_per_iteration / updates_per_iteration. Training cannot beat it either.
+  updates/s * steps_per_iteration / updates_per_iteration (DQN: replay_ratio * num_envs /
+  batch_size, so at the preset's replay ratio it grows with num_envs). Training cannot beat it
+  either.
 
 Fractions: training env steps/s over each bound, and over the ``serial`` bound
 1 / (1 / env alone + 1 / update), the rate if training cost exactly the two added up (acting,
@@ -72,7 +74,7 @@ ROUNDS = 3  # timed calls per program; the median is reported
 ENV_ALONE = "env alone"
 ENV_MIN_S = 0.2  # seconds of a timed env-alone run, at least
 PQN_KNOBS = ("rollout_length", "num_minibatches", "num_epochs")
-DQN_KNOBS = ("batch_size", "updates_per_iteration")
+DQN_KNOBS = ("batch_size", "replay_ratio")
 SHARED_KNOBS = ("hidden_sizes", "compute_dtype")
 
 
@@ -456,7 +458,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--num-minibatches", type=int, help=f"PQN {knob}")
     p.add_argument("--num-epochs", type=int, help=f"PQN {knob}")
     p.add_argument("--batch-size", type=int, help=f"DQN {knob}")
-    p.add_argument("--updates-per-iteration", type=int, help=f"DQN {knob}")
+    p.add_argument(
+        "--replay-ratio", type=float, help=f"DQN sampled transitions per env step {knob}"
+    )
     p.add_argument("--hidden-sizes", help=f"comma-separated MLP widths {knob}")
     p.add_argument("--compute-dtype", choices=COMPUTE_DTYPES, help=knob)
     p.add_argument("--out", type=Path, default=DEFAULT_OUT, help="JSON output path")

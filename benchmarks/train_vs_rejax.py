@@ -3,7 +3,8 @@
 ``config.algo`` picks the pair. Both train on our env (rejax through ``jaxnav.wrappers.GymnaxV0``,
 the gymnax 0.0.x API it expects; GridMaze with its ``onehot`` observation) with one ``TrainConfig``.
 DQN: the same MLP (``hidden_sizes``, ReLU, dueling heads when ``dueling``), double-DQN targets when
-``double``, ``num_envs`` envs, ``batch_size``, one gradient step per vectorized env step,
+``double``, ``num_envs`` envs, ``batch_size``, ``updates_per_iteration`` (``replay_ratio *
+num_envs / batch_size``) gradient steps per vectorized env step (rejax's ``num_epochs``),
 ``buffer_size``, ``learning_starts`` random steps (rejax's ``fill_buffer``), a hard target copy
 every ``target_update_period`` env steps, gamma, Adam with the same linear learning-rate decay, and
 epsilon from ``eps_start`` to ``eps_end`` over ``eps_decay_steps``. What stays rejax's own: its

@@ -15,6 +15,8 @@ from jaxnav.sharding import mesh_shape
 
 # step counters are int32 inside the compiled loop; keep a margin below 2^31
 MAX_STEPS = 2_000_000_000
+# DQN gradient steps per iteration, at most (a scan of them is compiled into every iteration)
+MAX_UPDATES = 65536
 ALGOS = tuple(PRESETS)  # "dqn", "pqn": an algorithm is what has presets
 
 
@@ -47,7 +49,11 @@ class TrainConfig:
     buffer_size: int = 100_000
     batch_size: int = 128
     learning_starts: int = 10_000
-    updates_per_iteration: int = 1  # gradient steps per vectorized env step (num_envs steps)
+    # sampled transitions per env step (the replay ratio): updates_per_iteration = replay_ratio *
+    # num_envs / batch_size gradient steps per vectorized env step, which must be whole; held
+    # fixed, the learning per env step (and target_update_period, in env steps) mean the same
+    # at any num_envs. 8 = the paper's grid setting, 16 envs x 1 update of batch 128.
+    replay_ratio: float = 8.0
     n_step: int = 1
     target_update_period: int = 2_000  # static, so skipped iterations cost nothing
     # PQN: each iteration steps every env rollout_length times, then num_epochs passes of
@@ -127,6 +133,45 @@ class TrainConfig:
         return -(-self.learning_starts // self.num_envs)
 
     @property
+    def updates_per_iteration(self) -> int:
+        """DQN: gradient steps per vectorized env step, ``replay_ratio * num_envs /
+        batch_size``; ``ValueError`` (one line) where that is not a whole number >= 1."""
+        u = self.replay_ratio * self.num_envs / self.batch_size
+        whole = round(u)
+        if whole >= 1 and abs(u - whole) <= 1e-9 * whole:
+            return whole
+        raise ValueError(self._replay_ratio_error(u))
+
+    def _replay_ratio_error(self, u: float) -> str:
+        """The message for a replay ratio giving ``u`` gradient steps per iteration, not whole
+        or below 1, with a batch size (else a replay ratio) that works."""
+        r, n, b = self.replay_ratio, self.num_envs, self.batch_size
+        head = (
+            f"replay_ratio={r!r} with num_envs={n} and batch_size={b} gives "
+            f"replay_ratio * num_envs / batch_size = {u:.6g} gradient steps per iteration, "
+            "not a whole number >= 1"
+        )
+        sampled = r * n  # transitions sampled per iteration: a batch size must divide it
+        shards = mesh_shape(self.num_seeds, self.devices)[1] if self.devices > 0 else 1
+        fits = []
+        # (a search of the divisors of at most 2**40 sampled transitions: a million candidates)
+        if 1 <= sampled <= 2**40 and abs(sampled - round(sampled)) <= 1e-9 * sampled:
+            total = round(sampled)
+            fits = [
+                d
+                for d in _divisors(total)
+                if d % shards == 0 and d <= self.buffer_size and total // d <= MAX_UPDATES
+            ]
+        if fits:
+            best = min(fits, key=lambda d: (abs(math.log(d / b)), -d))
+            return f"{head}; e.g. batch_size={best} ({round(sampled) // best} per iteration)"
+        k = max(1, round(u))
+        return (
+            f"{head}; no batch size divides replay_ratio * num_envs = {sampled:.6g}: e.g. "
+            f"replay_ratio={k * b / n} ({k} per iteration)"
+        )
+
+    @property
     def updates_per_learning_iteration(self) -> int:
         """Gradient steps of an iteration that learns."""
         if self.algo == "pqn":
@@ -156,7 +201,6 @@ class TrainConfig:
             "buffer_size": (1, 10**9),
             "batch_size": (1, 2**20),
             "learning_starts": (0, MAX_STEPS),
-            "updates_per_iteration": (1, 1024),
             "n_step": (1, 64),
             "rollout_length": (1, 4096),
             "num_epochs": (1, 1024),
@@ -179,14 +223,16 @@ class TrainConfig:
             "eps_start": (0.0, 1.0),
             "eps_end": (0.0, 1.0),
             "td_lambda": (0.0, 1.0),
+            "replay_ratio": (0.0, float(MAX_UPDATES * 2**20)),
         }
         for name, (lo, hi) in floats.items():
             v = getattr(self, name)
             ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
             if not ok or not lo <= v <= hi:
                 raise ValueError(f"{name}={v!r}: must be a number in [{lo}, {hi}]")
-        if self.lr <= 0 or self.max_grad_norm <= 0 or self.tau <= 0:
-            bad = next(n for n in ("lr", "max_grad_norm", "tau") if getattr(self, n) <= 0)
+        positive = ("lr", "max_grad_norm", "tau", "replay_ratio")
+        if any(getattr(self, n) <= 0 for n in positive):
+            bad = next(n for n in positive if getattr(self, n) <= 0)
             raise ValueError(f"{bad}={getattr(self, bad)!r}: must be positive")
         if not self.hidden_sizes or any(
             not isinstance(h, int) or isinstance(h, bool) or not 1 <= h <= 65536
@@ -241,7 +287,7 @@ class TrainConfig:
         if self.rollout_length != 1:
             raise ValueError(
                 f"rollout_length={self.rollout_length}: algo=dqn steps every env once per "
-                "iteration (use updates_per_iteration for the replay ratio)"
+                "iteration (use replay_ratio for the gradient steps per env step)"
             )
         if self.batch_size > self.buffer_size:
             raise ValueError(
@@ -262,3 +308,30 @@ class TrainConfig:
                 f"learning_starts={self.learning_starts} must be at least num_envs * n_step = "
                 f"{self.num_envs * self.n_step} so the buffer holds a full n-step transition"
             )
+        updates = self.updates_per_iteration  # ValueError unless a whole number >= 1
+        if updates > MAX_UPDATES:
+            raise ValueError(
+                f"replay_ratio={self.replay_ratio!r} with num_envs={self.num_envs} and "
+                f"batch_size={self.batch_size} gives {updates} gradient steps per iteration, "
+                f"more than {MAX_UPDATES}; use a larger batch_size or a smaller replay_ratio"
+            )
+
+
+def _divisors(n: int) -> list[int]:
+    small = [d for d in range(1, math.isqrt(n) + 1) if n % d == 0]
+    return sorted(set(small + [n // d for d in small]))
+
+
+def upgrade_saved(d: dict[str, Any]) -> dict[str, Any]:
+    """A saved ``TrainConfig`` dict (a run's config.json, ``dataclasses.asdict``) in today's
+    fields: one written before ``replay_ratio`` has ``updates_per_iteration`` u instead, the
+    same training as ``replay_ratio = u * batch_size / num_envs``."""
+    d = dict(d)
+    if "updates_per_iteration" in d:
+        u = d.pop("updates_per_iteration")
+        if "replay_ratio" not in d:
+            batch = d.get("batch_size", TrainConfig.batch_size)
+            envs = d.get("num_envs", TrainConfig.num_envs)
+            # (an edited num_envs of 0: left to validate() to name)
+            d["replay_ratio"] = u * batch / envs if envs else u
+    return d

@@ -114,6 +114,7 @@ def _smoke(config: TrainConfig, env_kwargs: dict[str, Any]) -> TrainConfig:
         learning_starts=256,
         buffer_size=1_024,
         batch_size=32,
+        replay_ratio=4.0,  # 32 sampled per step of the 8 envs: one gradient step an iteration
         log_interval=256,
         eps_decay_steps=512,
         target_update_period=128,

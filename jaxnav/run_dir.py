@@ -28,7 +28,7 @@ import orbax.checkpoint as ocp
 
 from jaxnav.agents import dqn
 from jaxnav.checkpoints import sha256_of, this_process_only
-from jaxnav.config import TrainConfig
+from jaxnav.config import TrainConfig, upgrade_saved
 from jaxnav.safe_io import remove_quietly
 from jaxnav.train import Trainer
 
@@ -191,7 +191,9 @@ def config_to_json(config: TrainConfig) -> dict[str, Any]:
 
 
 def config_from_json(d: dict[str, Any]) -> TrainConfig:
-    d = dict(d)
+    """The ``TrainConfig`` saved by ``config_to_json``, also by an older jaxnav (its
+    ``updates_per_iteration`` becomes the same training's ``replay_ratio``)."""
+    d = upgrade_saved(d)
     d["hidden_sizes"] = tuple(d["hidden_sizes"])
     return TrainConfig(**d)
 

@@ -51,6 +51,7 @@ TINY_TRAIN = TrainConfig(
     hidden_sizes=(16,),
     num_envs=4,
     batch_size=8,
+    replay_ratio=2.0,  # 8 sampled per step of the 4 envs: one gradient step an iteration
     buffer_size=64,
     learning_starts=8,
     total_timesteps=96,
@@ -68,6 +69,7 @@ TINY_FLAGS = [
     "--hidden-sizes", "16",
     "--num-envs", "4",
     "--batch-size", "8",
+    "--replay-ratio", "2",
     "--buffer-size", "64",
     "--learning-starts", "8",
     "--log-interval", "32",
@@ -86,6 +88,7 @@ SMALL_GRID_FLAGS = [
     "--learning-starts", "800",
     "--buffer-size", "2000",
     "--batch-size", "32",
+    "--replay-ratio", "4",
     "--log-interval", "1000",
     "--eval-episodes", "50",
     "--num-seeds", "2",

@@ -50,6 +50,7 @@ def test_grid_sweep_smoke(tmp_path: Path) -> None:
         "log_interval": 500,
         "buffer_size": 1000,
         "batch_size": 16,
+        "replay_ratio": 4.0,  # one gradient step an iteration
         "num_envs": 4,  # 500 / 4 iterations per log: exactly 4 logs
     }
     rows = grid_sweep.main(

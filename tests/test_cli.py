@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import csv
 import json
+import shutil
 import subprocess
 import sys
 
 import pytest
 from conftest import SMALL_GRID_FLAGS  # pytest puts tests/ on sys.path
 
+from jaxnav import run_dir
 from jaxnav.evaluate.__main__ import main as evaluate_main
 from jaxnav.train.__main__ import main as train_main
 
@@ -78,6 +80,13 @@ def test_evaluate_reads_the_run_and_generalizes(tiny_run, tmp_path, capsys):
         (["--batch-size", "5000", "--buffer-size", "4000"], "batch_size=5000"),
         (["--learning-starts", "10000000"], "learning_starts=10000000"),
         (["--gamma", "1.5"], "gamma=1.5"),
+        (["--replay-ratio", "abc"], "--replay-ratio: invalid float value: 'abc'"),
+        (["--replay-ratio", "-1"], "replay_ratio=-1.0"),
+        (["--replay-ratio", "nan"], "replay_ratio=nan"),
+        (["--replay-ratio", "0"], "replay_ratio=0.0: must be positive"),
+        # 3 * 16 / 128 = 0.375 gradient steps an iteration: a batch of 48 would take one
+        (["--replay-ratio", "3"], "replay_ratio=3.0 with num_envs=16 and batch_size=128"),
+        (["--num-envs", "1000"], "e.g. batch_size=125 (64 per iteration)"),
         (["--dueling", "maybe"], "maybe"),
         # sizes that would exhaust memory are refused before anything is allocated
         (["--buffer-size", "1000000000", "--num-seeds", "64"], "buffer_size=1000000000"),
@@ -143,3 +152,27 @@ def test_evaluate_refuses_an_env_whose_observations_do_not_fit(tiny_run, capsys)
         "observations (10,) one-hot encoded to 30 do not fit the run's network (10,) one-hot "
         "encoded to 34"
     )
+
+
+def test_a_run_saved_with_updates_per_iteration_loads_as_its_replay_ratio(tiny_run, capsys):
+    """The config.json of a run trained before ``replay_ratio`` has ``updates_per_iteration``
+    u in its place: the run loads (evaluate, render, export, --resume) with replay_ratio =
+    u * batch_size / num_envs, the same training."""
+    old = tiny_run.parent / "old"
+    shutil.copytree(tiny_run, old)
+    now = run_dir.load_config(tiny_run)
+    assert (now.replay_ratio, now.num_envs, now.batch_size) == (4.0, 8, 32)
+    document = json.loads((old / "config.json").read_text())
+    document["config"] = {
+        ("updates_per_iteration" if k == "replay_ratio" else k): (1 if k == "replay_ratio" else v)
+        for k, v in document["config"].items()
+    }
+    (old / "config.json").write_text(json.dumps(document))
+    assert run_dir.load_config(old) == now and now.updates_per_iteration == 1
+    assert evaluate_main([str(old), "--episodes", "10"]) == 0
+    capsys.readouterr()
+    # 4 gradient steps of 128 per step of 64 envs: 8 sampled transitions per env step
+    four = {**run_dir.config_to_json(now), "num_envs": 64, "batch_size": 128}
+    del four["replay_ratio"]
+    config = run_dir.config_from_json({**four, "updates_per_iteration": 4})
+    assert config.replay_ratio == 8.0 and config.updates_per_iteration == 4

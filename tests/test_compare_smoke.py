@@ -24,6 +24,7 @@ TINY = {
     "buffer_size": 1000,
     "batch_size": 16,
     "num_envs": 4,
+    "replay_ratio": 4.0,  # one gradient step of 16 per step of the 4 envs
     "target_update_period": 100,
     "eps_decay_steps": 1000,
 }
@@ -158,7 +159,8 @@ def test_second_cli_run_is_served_from_the_compilation_cache(tmp_path: Path) -> 
     persistent cache instead of compiling it again."""
     flags = ["--quiet", "--env-arg", "size=5", "--hidden-sizes", "16", "--num-envs", "4"]
     flags += ["--total-timesteps", "400", "--learning-starts", "100", "--log-interval", "200"]
-    flags += ["--buffer-size", "400", "--batch-size", "8", "--eval-episodes", "10"]
+    flags += ["--buffer-size", "400", "--batch-size", "8", "--replay-ratio", "2"]
+    flags += ["--eval-episodes", "10"]
     row = compile_time.measure_train("tiny", flags, tmp_path)
     first, second = row["first_run"], row["second_run"]
     assert first["phases"]["cache_hits"] == 0  # an empty cache

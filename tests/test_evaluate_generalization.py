@@ -199,6 +199,7 @@ TINY_ROBOT = [
     "--learning-starts", "32",
     "--buffer-size", "128",
     "--batch-size", "16",
+    "--replay-ratio", "2",
     "--log-interval", "64",
     "--eps-decay-steps", "64",
     "--target-update-period", "16",

@@ -104,7 +104,7 @@ def test_per_interval_metrics_too_large_for_memory_are_refused_before_the_run_di
     tmp_path, capsys
 ):
     out = tmp_path / "r"
-    big = ["--num-seeds", "4096", "--log-interval", "1", "--num-envs", "1"]
+    big = ["--num-seeds", "4096", "--log-interval", "1", "--num-envs", "1", "--replay-ratio", "8"]
     argv = [*TINY_FLAGS, *big, "--total-timesteps", "2000000000", "--out", str(out)]
     err = one_line_error(capsys, 2, train_main(argv))
     assert "log_interval=1" in err and "metrics need about" in err and "GiB" in err, err

@@ -20,7 +20,8 @@ STEPS = ["--total-timesteps", "64", "--eval-episodes", "4"]
 MAZE = "cell_size: 1.0\n#####\n#S..#\n#...#\n#..G#\n#####\n"
 OTHER_MAZE = "cell_size: 1.0\n########\n#......#\n#.####.#\n#......#\n########\n"
 ROBOT = [
-    "--hidden-sizes", "16", "--num-envs", "4", "--batch-size", "8", "--buffer-size", "64",
+    "--hidden-sizes", "16", "--num-envs", "4", "--batch-size", "8", "--replay-ratio", "2",
+    "--buffer-size", "64",
     "--learning-starts", "8", "--log-interval", "32", "--n-step", "1",
     "--env-arg", "backend=kinematic", "--quiet", *STEPS,
 ]  # fmt: skip

@@ -27,7 +27,7 @@ BASE = [*TINY_FLAGS, "--total-timesteps", "64", "--eval-episodes", "4"]
 
 INT_FLAGS = [
     "--seed", "--num-seeds", "--total-timesteps", "--num-envs", "--buffer-size", "--batch-size",
-    "--learning-starts", "--updates-per-iteration", "--n-step", "--target-update-period",
+    "--learning-starts", "--n-step", "--target-update-period",
     "--eps-decay-steps", "--log-interval", "--eval-episodes", "--checkpoint-every",
     "--keep-checkpoints",
 ]  # fmt: skip
@@ -39,6 +39,7 @@ FLOAT_FLAGS = [
     "--tau",
     "--eps-start",
     "--eps-end",
+    "--replay-ratio",
 ]
 CHOICES = {
     "--env": jaxnav.registered_envs(),
@@ -122,7 +123,7 @@ def cheap(config) -> bool:
         and config.num_envs <= 32
         and config.buffer_size <= 4096
         and config.batch_size <= 64
-        and config.updates_per_iteration <= 4
+        and (config.algo == "pqn" or config.updates_per_iteration <= 4)
         and config.n_step <= 8
         and len(config.hidden_sizes) <= 2
         and max(config.hidden_sizes) <= 64

@@ -23,6 +23,7 @@ def test_dueling_double_dqn_learns_a_small_maze(devices):
         learning_starts=2_000,
         buffer_size=20_000,
         batch_size=64,
+        replay_ratio=4.0,  # one gradient step of 64 per step of the 16 envs
         target_update_period=500,
         eps_decay_steps=24_000,
         log_interval=8_000,

@@ -125,3 +125,60 @@ def test_grid_random_trains_with_its_pqn_preset_unless_the_dqn_is_asked_for():
     assert parse("--env", "GridMaze-Random-v0") == config
     assert parse("--env", "GridMaze-Random-v0", "--algo", "dqn") == dqn
     assert parse("--env", "GridMaze-Random-v0", "--total-timesteps", "5000").algo == "pqn"
+
+
+# ------------------------------------------------------------------ replay ratio
+@pytest.mark.parametrize("env_id", registered_envs())
+def test_dqn_presets_take_the_updates_per_iteration_they_took_before_replay_ratio(
+    env_id, maze_file
+):
+    """``replay_ratio`` replaced the field ``updates_per_iteration`` (1 in every preset and the
+    experiments' configs): each derives the same gradient steps, so trains bit for bit the
+    same."""
+    config = TrainConfig.for_env(env_id, algo="dqn", env_kwargs=env_kwargs(env_id, maze_file))
+    config.validate()
+    assert config.updates_per_iteration == 1
+    assert config.replay_ratio * config.num_envs == config.batch_size  # 16 x 8 = 128, 64 x 8 = 512
+
+
+@pytest.mark.parametrize("size", ["full", "quick", "smoke"])
+def test_experiment_configs_take_one_update_per_iteration(size):
+    from jaxnav import experiments
+
+    for config in (experiments.grid_config(size), experiments.robot_config("RobotSimple-v0", size)):
+        config.validate()
+        assert config.updates_per_iteration == 1, (size, config.env)
+
+
+@pytest.mark.parametrize("num_envs, updates", [(16, 1), (64, 4), (256, 16), (1024, 64)])
+def test_the_default_replay_ratio_holds_across_env_counts(num_envs, updates):
+    config = TrainConfig(num_envs=num_envs)
+    config.validate()
+    assert config.updates_per_iteration == updates  # 8 sampled transitions per env step
+    assert config.updates_per_iteration * config.batch_size == 8 * num_envs
+
+
+@pytest.mark.parametrize(
+    "fields, suggestion",
+    [
+        ({"replay_ratio": 3.0}, "e.g. batch_size=48 (1 per iteration)"),
+        ({"num_envs": 1000}, "e.g. batch_size=125 (64 per iteration)"),
+        ({"num_envs": 4, "batch_size": 64}, "e.g. batch_size=32 (1 per iteration)"),
+        ({"num_envs": 7, "replay_ratio": 0.3}, "no batch size divides replay_ratio * num_envs"),
+    ],
+)
+def test_a_replay_ratio_giving_no_whole_updates_is_refused_with_a_batch_size(fields, suggestion):
+    config = TrainConfig(**fields)
+    with pytest.raises(ValueError) as info:
+        config.validate()
+    message = str(info.value)
+    assert "\n" not in message and suggestion in message, message
+    for name in ("replay_ratio", "num_envs", "batch_size"):
+        assert f"{name}={getattr(config, name)!r}" in message, message
+    fixed = message.split("e.g. ")[1].split(" ")[0].split("=")
+    TrainConfig(**{**fields, fixed[0]: type(getattr(config, fixed[0]))(fixed[1])}).validate()
+
+
+def test_replay_ratio_is_dqn_only():
+    pqn = TrainConfig.for_env("GridMaze-v0", algo="pqn", batch_size=1000)
+    pqn.validate()  # 8 * 64 / 1000: no whole number, but PQN samples no replay

@@ -221,7 +221,7 @@ UNSTABLE = [
     "--total-timesteps", "320",
     "--checkpoint-every", "32",
     "--learning-starts", "64",  # two good checkpoints first
-    "--updates-per-iteration", "4",
+    "--replay-ratio", "8",  # 4 gradient steps of 8 per step of the 4 envs
     "--optimizer", "sgd",
     "--lr", "10",
     "--lr-end", "10",

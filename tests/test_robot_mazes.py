@@ -93,6 +93,7 @@ def test_a_run_parses_its_maze_file_once(tmp_path, monkeypatch):
         M, "parse_maze", lambda text, name, **kw: parsed.append(name) or parse(text, name, **kw)
     )
     flags = ["--maze-file", str(path), "--env-arg", "backend=kinematic", "--num-envs", "4"]
+    flags += ["--batch-size", "32"]  # the preset's replay ratio 8: one gradient step of 32
     args, config, *_, trainer = prepare_training([*flags, "--out", str(tmp_path / "run")])
     assert config.env == "RobotMaze-v0" and trainer.env.config.maze_file == str(path)
     assert parsed == [str(path)]

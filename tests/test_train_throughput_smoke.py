@@ -21,7 +21,8 @@ def test_train_throughput_smoke(tmp_path: Path) -> None:
     out = tmp_path / "train_throughput.json"
     argv = ["--algos", "dqn,pqn", "--num-envs", "4,8", "--iterations", "4"]
     argv += ["--hidden-sizes", "16", "--env-arg", "size=5", "--rollout-length", "2"]
-    argv += ["--num-minibatches", "2", "--batch-size", "8", "--out", str(out)]
+    argv += ["--num-minibatches", "2", "--batch-size", "8", "--replay-ratio", "2"]
+    argv += ["--out", str(out)]
     result = train_throughput.main(argv)
     data = json.loads(out.read_text())
     assert data == json.loads(json.dumps(result))
@@ -47,7 +48,8 @@ def test_train_throughput_smoke(tmp_path: Path) -> None:
             assert config["layer_norm"]  # the PQN preset
         else:  # DQN's knobs only; learning from the first iteration
             assert (config["rollout_length"], config["batch_size"]) == (1, 8)
-            assert r["minibatch_size"] == 8 and r["updates_per_iteration"] == 1
+            assert config["replay_ratio"] == 2.0  # 2 * n / 8 gradient steps of 8: 1 and 2
+            assert r["minibatch_size"] == 8 and r["updates_per_iteration"] == n // 4
             assert config["learning_starts"] == n * config["n_step"]
         assert r["iterations"] == 4 and r["prep_s"] > 0
         train, update = r["train"], r["update"]

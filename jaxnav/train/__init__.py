@@ -5,7 +5,8 @@ iteration steps every env ``rollout_length`` times (acting epsilon-greedily with
 network), then learns from what it collected:
 
 - ``algo="dqn"`` (the paper's): one env step, written into the replay buffer, then
-  ``updates_per_iteration`` gradient steps on replay samples against a target network;
+  ``updates_per_iteration`` = ``replay_ratio * num_envs / batch_size`` gradient steps on replay
+  samples against a target network (``replay_ratio`` sampled transitions per env step);
 - ``algo="pqn"``: a rollout of many envs, lambda-returns from the online network, then
   ``num_epochs`` passes of ``num_minibatches`` gradient steps over it; no replay, no target.
 

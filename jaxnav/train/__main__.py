@@ -57,7 +57,8 @@ HELP = {
     "buffer_size": "replay capacity in transitions",
     "batch_size": "transitions per gradient step",
     "learning_starts": "env steps of random actions before the first update",
-    "updates_per_iteration": "gradient steps per vectorized env step",
+    "replay_ratio": "dqn: sampled transitions per env step; an iteration (one step of every env) "
+    "takes replay_ratio * num_envs / batch_size gradient steps, a whole number",
     "n_step": "n-step returns",
     "gamma": "discount",
     "lr": "learning rate at the start",
