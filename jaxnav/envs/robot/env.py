@@ -39,12 +39,13 @@ Generalist (``RobotNav-v0``, ``GENERALIST``): ``maze="families"``, a bank of 2,0
 ``generators.py`` (rooms with doors, depth-first corridors 0.5 or 1 m wide, random wall
 segments, pillar halls, some on a smaller sub-arena; 20 x 20 cells of 0.5 m, seed
 ``maze_seed``), on the ``kinematic`` backend, with 32 lasers all around (360 degrees) read to
-3.5 m, ``obs_absolute=False`` and a waypoint 1 m ahead on a shortest path of 8-neighbour moves
-(frame: 32 lasers, D, bearing, waypoint bearing and distance; 4 frames, 152 inputs), moves of
-0.15 m (1.5 m/s) and turns of 0.2 rad a step, -10 for a collision, -0.1..-0.2 a step, up to -1 a step for scraping a wall
-(``clearance_reward`` within ``clearance`` 0.1 m of free space), 40 wall slots (the families
-need at most 39 boxes; mazes that need more are redrawn) and ``max_steps`` 800 (the longest geodesic
-start-goal path of 256 resets was 34.5 m, ~230 forward steps). Each setting's effect is in
+3.5 m, ``obs_absolute=False`` and a waypoint 1 m ahead on a shortest path of 8-neighbour
+moves (frame: 32 lasers, D, bearing, waypoint bearing and distance; 4 frames, 152 inputs),
+moves of 0.15 m (1.5 m/s) and turns of 0.2 rad a step, -10 for a collision, -0.1..-0.2 a
+step, up to -1 a step for scraping a wall (``clearance_reward`` within ``clearance`` 0.1 m of
+free space), 40 wall slots (the families need at most 39 boxes; mazes that need more are
+redrawn) and ``max_steps`` 800 (the longest geodesic start-goal path of 256 resets was 34.5 m,
+~230 forward steps). Each setting's effect is in
 ``benchmarks/results/generalist_sweep_h100.md``. The geodesic table keeps ``num_goal_cells`` =
 32 goal cells per maze: int16[2048, 32, 20, 20] is 50 MiB (the full all-pairs table would be
 1.25 GiB and 819,200 BFS runs to build); resets draw goals from those cells only, so each maze
