@@ -59,7 +59,7 @@ def test_two_processes_train_as_one_process_with_two_devices(tmp_path):
 
 
 def test_two_processes_stop_together_and_resume(tmp_path):
-    steps = ["--total-timesteps", "4000", "--checkpoint-every", "320"]
+    steps = ["--total-timesteps", "1920", "--checkpoint-every", "320"]
     assert train_main([*FLAGS, *steps, "--out", str(tmp_path / "one")]) == 0
     out = tmp_path / "two"
     procs = _launch([*FLAGS, *steps, "--out", str(out)])
