@@ -41,7 +41,9 @@ def rollouts(env_id: str, fraction: float, **overrides):
     "env_id, fraction, overrides",
     [
         ("RobotRandom-v0", 1 / 16, (("backend", "kinematic"), ("max_steps", 12))),
-        ("GridMaze-v0", 0.25, ()),  # random play: about 9 of 32 episodes end per step
+        # random play: about 5 of 32 episodes end per step, so a budget of 4 is both exceeded
+        # and not on some steps of every seed (at 8 a seed could stay within it throughout)
+        ("GridMaze-v0", 1 / 8, ()),
     ],
 )
 @settings(max_examples=4, deadline=None)
