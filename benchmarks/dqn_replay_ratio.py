@@ -37,10 +37,11 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks.common import machine_info, write_results
+from jaxnav.config import TrainConfig
 from jaxnav.run_dir import config_from_json
 
 ENV = "GridMaze-v0"
-BATCH = 128  # TrainConfig's batch_size
+BATCH = TrainConfig.batch_size  # the default every run keeps
 RUN = ["--total-timesteps", "245760", "--log-interval", "16384"]
 VARIANTS = ("ratio", "one-update")
 

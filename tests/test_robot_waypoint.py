@@ -83,6 +83,18 @@ def start_poses(env, params, n: int, seed: int):
     return layout, pose.astype(np.float32), goal
 
 
+def bfs_to_goals(bank, layout, pose, goal) -> tuple[list[np.ndarray], np.ndarray]:
+    """The reference: each episode's BFS steps to its goal cell on its maze's grid (an
+    independent BFS), and the steps from its start."""
+    rows, cs = bank.grid.shape[1], bank.cell_size
+    ref = [
+        bfs_distances(np.asarray(bank.grid[lay]), cell_of(g, rows, cs))
+        for lay, g in zip(layout, goal, strict=True)
+    ]
+    steps = np.array([r[cell_of(p, rows, cs)] for r, p in zip(ref, pose, strict=True)])
+    return ref, steps
+
+
 @pytest.mark.parametrize("env_id, overrides", ENVS, ids=ENV_IDS)
 def test_following_straight_waypoints_walks_a_shortest_path_to_the_goal(env_id, overrides):
     """With 4 moves, from random start points (anywhere the robot fits in a free cell, any
@@ -95,16 +107,10 @@ def test_following_straight_waypoints_walks_a_shortest_path_to_the_goal(env_id, 
     rows, cols = bank.grid.shape[1:]
     cs = bank.cell_size
     layout, pose, goal = start_poses(env, params, 48, seed=k)
-    eps = layout
-    # the reference: BFS steps to each episode's goal cell, on its maze's grid
-    ref = [
-        bfs_distances(np.asarray(bank.grid[lay]), cell_of(g, rows, cs))
-        for lay, g in zip(layout, goal, strict=True)
-    ]
-    steps = np.array([r[cell_of(p, rows, cs)] for r, p in zip(ref, pose, strict=True)])
+    ref, steps = bfs_to_goals(bank, layout, pose, goal)
     assert (steps > 0).all()  # reachable, and not from the goal's own cell
-    hops = np.zeros(len(eps), int)
-    done = np.zeros(len(eps), bool)
+    hops = np.zeros(len(layout), int)
+    done = np.zeros(len(layout), bool)
     for _ in range(int(steps.max()) + 2):  # a bound: each hop must come at least a step closer
         if done.all():
             break
@@ -139,11 +145,7 @@ def test_following_diagonal_waypoints_reaches_the_goal_without_cutting_corners(e
     rows, cols = bank.grid.shape[1:]
     cs = bank.cell_size
     layout, pose, goal = start_poses(env, params, 48, seed=k)
-    ref = [
-        bfs_distances(np.asarray(bank.grid[lay]), cell_of(g, rows, cs))
-        for lay, g in zip(layout, goal, strict=True)
-    ]
-    steps = np.array([r[cell_of(p, rows, cs)] for r, p in zip(ref, pose, strict=True)])
+    ref, steps = bfs_to_goals(bank, layout, pose, goal)
     hops = np.zeros(len(layout), int)
     done = np.zeros(len(layout), bool)
     diagonal = 0
