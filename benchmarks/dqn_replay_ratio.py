@@ -1,7 +1,7 @@
 """The DQN's replay ratio across env counts, measured through the training command a user runs.
 
     python -m benchmarks.dqn_replay_ratio [--num-envs 16,64,256,1024] [--seeds 2]
-        [--variants ratio,one-update] [--out benchmarks/results/dqn_replay_ratio.json]
+        [--variants ratio,one-update] [--batch-sizes 128] [--out FILE.json]
 
 (this CPU's rows: ``--out benchmarks/results/dqn_replay_ratio_cpu.json``)
 
@@ -12,8 +12,10 @@ whole number of iterations at 256 or 1024 envs (245,760 = 15 intervals of 16,384
 count here). Variants:
 
 - ``ratio``: the default ``--replay-ratio 8`` (8 sampled transitions per env step), so
-  ``8 * N / 128`` gradient steps of the default batch of 128 per iteration: the same gradient
-  steps per env step at every N;
+  ``8 * N / B`` gradient steps of batch B per iteration: the same sampled transitions per env
+  step at every N. A row per B of ``--batch-sizes`` (default: the default batch, 128) where
+  that count is whole, so larger batches (fewer, larger gradient steps, what a GPU runs
+  faster) are measured at the same replay ratio;
 - ``one-update``: ``--replay-ratio 128/N``, one gradient step per iteration, what the defaults
   gave before ``replay_ratio`` replaced ``updates_per_iteration`` (left out at N = 16, where
   it is the ``ratio`` row).
@@ -50,12 +52,16 @@ def replay_ratio(variant: str, num_envs: int) -> float:
     return 8.0 if variant == "ratio" else BATCH / num_envs
 
 
-def measure(variant: str, num_envs: int, seeds: int, tmp: Path) -> dict[str, Any]:
+def measure(
+    variant: str, num_envs: int, seeds: int, tmp: Path, batch_size: int = BATCH
+) -> dict[str, Any]:
     """Train ``seeds`` seeds with the CLI; the row of the results."""
     ratio = replay_ratio(variant, num_envs)
-    out = tmp / f"{variant}-{num_envs}"
+    out = tmp / f"{variant}-{num_envs}-{batch_size}"
     argv = ["--env", ENV, "--num-envs", str(num_envs), "--num-seeds", str(seeds), *RUN]
     argv += ["--replay-ratio", repr(ratio)]
+    if batch_size != BATCH:
+        argv += ["--batch-size", str(batch_size)]
     cmd = [sys.executable, "-m", "jaxnav.train", *argv, "--out", str(out), "--quiet"]
     print("$", " ".join(cmd), flush=True)
     load = os.getloadavg()[0]
@@ -71,6 +77,7 @@ def measure(variant: str, num_envs: int, seeds: int, tmp: Path) -> dict[str, Any
     return {
         "variant": variant,
         "num_envs": num_envs,
+        "batch_size": config.batch_size,
         "replay_ratio": config.replay_ratio,
         "updates_per_iteration": config.updates_per_iteration,
         "gradient_steps_per_seed": config.updates_per_iteration * learning_iterations,
@@ -86,32 +93,41 @@ def measure(variant: str, num_envs: int, seeds: int, tmp: Path) -> dict[str, Any
     }
 
 
+def steps_per_s(result: dict[str, Any], row: dict[str, Any]) -> str:
+    """Env steps per second of training, all seeds together."""
+    steps = int(RUN[1]) * result["seeds"]
+    return f"{steps / row['train_s']:,.0f}" if row["train_s"] > 0 else "n/a"
+
+
 def markdown(result: dict[str, Any]) -> str:
     m = result["machine"]
     lines = [
         "# DQN replay ratio across env counts (benchmarks/dqn_replay_ratio.py)\n",
         f"`{result['command']}`: each row is",
         f"`python -m jaxnav.train --env {ENV} --num-envs N --num-seeds {result['seeds']} "
-        f"{' '.join(RUN)} --replay-ratio R`; greedy success of the command's own evaluation "
-        "(summary.json, 1000 episodes per seed), mean over seeds with each seed in brackets; "
-        "train s: the command's training time for all seeds together (vmapped), compile "
-        "excluded. Variants: `ratio`, the default replay ratio 8 (8 * N / 128 gradient steps "
-        "of 128 per iteration); `one-update`, replay ratio 128 / N, one gradient step per "
+        f"{' '.join(RUN)} --replay-ratio R [--batch-size B]`; greedy success of the "
+        "command's own evaluation (summary.json, 1000 episodes per seed), mean over seeds "
+        "with each seed in brackets; train s: the command's training time for all seeds "
+        "together (vmapped), compile excluded; env steps/s: all seeds' env steps over train "
+        "s. Variants: `ratio`, the default replay ratio 8 (8 * N / B gradient steps of batch "
+        "B per iteration); `one-update`, replay ratio 128 / N, one gradient step per "
         "iteration, what the defaults gave before replay_ratio replaced updates_per_iteration "
         "(at N = 16 it is the ratio row).\n",
-        f"Machine: {m['platform']}, {m['cpu_count']} CPU cores ({m['backend']}), jax "
-        f"{m['jax_version']}, shared with other jobs (1-minute load average before each run in "
-        f"the last column); {m['date'][:10]}.\n",
-        "| variant | num_envs | replay ratio | gradient steps / iteration | gradient steps "
-        "per seed | greedy success (per seed) | train s | compile s | load avg |",
-        "|---|---:|---:|---:|---:|---|---:|---:|---:|",
+        f"Machine: {m['platform']}, {m['cpu_count']} CPU cores, {m['devices'][0]} "
+        f"({m['backend']}), jax {m['jax_version']}, shared with other jobs (1-minute load "
+        f"average before each run in the last column); {m['date'][:10]}.\n",
+        "| variant | num_envs | replay ratio | batch | gradient steps / iteration | gradient "
+        "steps per seed | greedy success (per seed) | train s | env steps/s | compile s "
+        "| load avg |",
+        "|---|---:|---:|---:|---:|---:|---|---:|---:|---:|---:|",
     ]
     for r in result["rows"]:
         seeds = ", ".join(f"{s:.3f}" for s in r["success_per_seed"])
         lines.append(
             f"| {r['variant']} | {r['num_envs']} | {r['replay_ratio']:g} | "
-            f"{r['updates_per_iteration']} | {r['gradient_steps_per_seed']:,} | "
-            f"{r['success_mean']:.3f} ({seeds}) | {r['train_s']:.1f} | {r['compile_s']:.1f} | "
+            f"{r.get('batch_size', BATCH)} | {r['updates_per_iteration']} | "
+            f"{r['gradient_steps_per_seed']:,} | {r['success_mean']:.3f} ({seeds}) | "
+            f"{r['train_s']:.1f} | {steps_per_s(result, r)} | {r['compile_s']:.1f} | "
             f"{r['loadavg_1m_before']:.1f} |"
         )
     return "\n".join(lines)
@@ -122,9 +138,11 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     ap.add_argument("--num-envs", default="16,64,256,1024", help="comma-separated env counts")
     ap.add_argument("--seeds", type=int, default=2, help="--num-seeds of every run")
     ap.add_argument("--variants", default=",".join(VARIANTS), help=f"of {', '.join(VARIANTS)}")
+    ap.add_argument("--batch-sizes", default=str(BATCH), help="comma-separated, ratio rows")
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results/dqn_replay_ratio.json"))
     args = ap.parse_args(argv)
     counts = [int(n) for n in args.num_envs.split(",")]
+    batches = [int(b) for b in args.batch_sizes.split(",")]
     variants = [v for v in args.variants.split(",") if v]
     if any(v not in VARIANTS for v in variants) or any(245_760 % n for n in counts):
         ap.error(f"variants of {VARIANTS}; env counts dividing 245760")
@@ -137,10 +155,12 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             for v in variants:
                 if v == "one-update" and replay_ratio(v, n) == replay_ratio("ratio", n):
                     continue  # the same run as the ratio row
-                row = measure(v, n, args.seeds, Path(tmp))
-                result["rows"].append(row)
-                print(markdown(result).splitlines()[-1], flush=True)
-                write_results(args.out, result, markdown(result))
+                for b in batches if v == "ratio" else [BATCH]:
+                    if (replay_ratio(v, n) * n) % b:
+                        continue  # not a whole number of gradient steps per iteration
+                    result["rows"].append(measure(v, n, args.seeds, Path(tmp), b))
+                    print(markdown(result).splitlines()[-1], flush=True)
+                    write_results(args.out, result, markdown(result))
     print(markdown(result))
     return result
 
