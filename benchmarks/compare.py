@@ -2,7 +2,8 @@
 
     python -m benchmarks.compare [--num-envs 1,16,256,4096,16384] [--envs NAME,...]
         [--steps 200] [--target-s 0.5] [--rounds 3] [--train-config JSON]
-        [--train-networks 512,256,128,64;64,64] [--eval-episodes 256] [--threshold 0.95]
+        [--train-networks 512,256,128,64;64,64] [--train-seeds 0] [--eval-episodes 256]
+        [--threshold 0.95]
         [--sections env,train,compile] [--out benchmarks/results/compare.json]
 
 Sections (each can be left out with ``--sections``):
@@ -227,6 +228,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         help="hidden sizes per trained network, ';'-separated, e.g. '512,256,128,64;64,64' "
         f"(default: the config's and rejax's default {','.join(map(str, REJAX_DEFAULT_NETWORK))})",
     )
+    p.add_argument("--train-seeds", default="0", help="comma-separated seeds, a run each")
     p.add_argument("--eval-episodes", type=int, default=256, help="greedy episodes per check")
     p.add_argument("--threshold", type=float, default=0.95, help="greedy success to reach")
     p.add_argument("--compile-timesteps", type=int, default=16_000, help="steps per CLI run")
@@ -247,6 +249,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         p.error("--num-envs, --steps and --rounds must be >= 1")
     if args.eval_episodes < 1 or not 0 < args.threshold <= 1:
         p.error("--eval-episodes must be >= 1, --threshold in (0, 1]")
+    try:
+        args.train_seeds = [int(s) for s in args.train_seeds.split(",") if s.strip()]
+    except ValueError:
+        args.train_seeds = []
+    if not args.train_seeds or min(args.train_seeds) < 0:
+        p.error(f"--train-seeds {args.train_seeds!r}: comma-separated integers >= 0")
     try:
         args.train_config = train_config(args.train_config)
     except (ValueError, TypeError) as e:  # bad JSON, unknown field, invalid value
@@ -276,13 +284,15 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         result["train"] = []
         for hidden_sizes in args.train_networks:
             config = dataclasses.replace(args.train_config, hidden_sizes=hidden_sizes)
-            run = train_vs_rejax.measure(config, args.eval_episodes, args.threshold)
-            result["train"].append(run | {"config": dataclasses.asdict(config)})
-            parts.append(
-                f"### {config.algo.upper()} training, {config.env}, "
-                f"{config.total_timesteps:,} env steps, "
-                f"network {'-'.join(map(str, hidden_sizes))}\n\n" + train_vs_rejax.table(run)
-            )
+            for seed in args.train_seeds:
+                run = train_vs_rejax.measure(config, args.eval_episodes, args.threshold, seed)
+                result["train"].append(run | {"config": dataclasses.asdict(config)})
+                parts.append(
+                    f"### {config.algo.upper()} training, {config.env}, "
+                    f"{config.total_timesteps:,} env steps, network "
+                    f"{'-'.join(map(str, hidden_sizes))}, seed {seed}\n\n"
+                    + train_vs_rejax.table(run)
+                )
         summary = train_vs_rejax.summary(result["train"])
         algo = args.train_config.algo.upper()
         parts.append(f"### {algo} training, each network\n\n" + summary)

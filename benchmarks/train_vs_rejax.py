@@ -28,7 +28,9 @@ evaluation callback replaced by nothing), then the intervals run in turn (ours, 
 timed region, both are evaluated greedily with the same evaluator (``jaxnav.evaluate``) on the
 same ``eval_episodes`` fresh episodes. Reported per side: compile s, train s (the timed
 intervals), env steps/s, the greedy success curve, and the train time until greedy success
-first reached ``threshold``; and the wall-time ratio rejax / ours.
+first reached ``threshold``; the wall-time ratio rejax / ours (speed per env step); and, at
+equal success, the train time each side took to first reach the best success rejax reached in
+the run, and their ratio rejax / ours (speed to a success both reach).
 """
 
 from __future__ import annotations
@@ -211,6 +213,12 @@ def measure(
             "curve": side["curve"],
         }
     ours, theirs = (out[s["name"]] for s in sides)
+    # equal success: rejax's best of the run, and when each side first reached it
+    peer_best = max(p["success"] for p in theirs["curve"])
+    for side in (ours, theirs):
+        reached = [p["train_s"] for p in side["curve"] if p["success"] >= peer_best]
+        side["time_to_peer_best_s"] = reached[0] if reached else None
+    t_ours, t_theirs = ours["time_to_peer_best_s"], theirs["time_to_peer_best_s"]
     params = sides[0]["q_params"](sides[0]["state"])
     return {
         "algo": config.algo,
@@ -219,8 +227,11 @@ def measure(
         "network_weights": sum(x.size for x in jax.tree.leaves(params)),
         "threshold": threshold,
         "eval_episodes": eval_episodes,
+        "seed": seed,
         "sides": out,
         "wall_time_ratio": theirs["train_s"] / ours["train_s"],
+        "peer_best_success": peer_best,
+        "equal_success_ratio": None if t_ours is None else t_theirs / t_ours,
     }
 
 
@@ -239,16 +250,31 @@ def table(result: dict[str, Any]) -> str:
             f"{s['env_steps_per_s']:,.0f} | {s['final_success']:.3f} | {reached} |"
         )
     lines.append(f"\nWall-time ratio rejax / ours: **{result['wall_time_ratio']:.2f}x**")
+    lines.append(f"\n{equal_success(result)}")
     return "\n".join(lines)
+
+
+def equal_success(result: dict[str, Any]) -> str:
+    """One line: when each side first reached the best success rejax reached."""
+    if "peer_best_success" not in result:
+        return "At equal success: n/a (not measured)"
+    ours, theirs = result["sides"].values()
+    t_ours, t_theirs = ours["time_to_peer_best_s"], theirs["time_to_peer_best_s"]
+    ratio = result["equal_success_ratio"]
+    head = f"At equal success (rejax's best, {result['peer_best_success']:.3f}): train s "
+    if ratio is None:
+        return head + f"jaxnav never reached it / rejax {t_theirs:.1f}"
+    return head + f"jaxnav {t_ours:.1f} / rejax {t_theirs:.1f}, rejax / ours **{ratio:.2f}x**"
 
 
 def summary(results: list[dict[str, Any]]) -> str:
     """One row per network of ``measure`` results: train time of each side and the ratio."""
     thr = results[0]["threshold"]
     lines = [
-        "| network | weights | jaxnav train s | rejax train s | rejax / ours "
-        f"| train s to success >= {thr:g}, jaxnav / rejax |",
-        "|---|---:|---:|---:|---:|---:|",
+        "| network | seed | weights | jaxnav train s | rejax train s | rejax / ours "
+        f"| train s to success >= {thr:g}, jaxnav / rejax | rejax's best success "
+        "| train s to it, jaxnav / rejax | rejax / ours at equal success |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for r in results:
         ours, theirs = r["sides"].values()
@@ -256,9 +282,18 @@ def summary(results: list[dict[str, Any]]) -> str:
             "-" if s["time_to_threshold_s"] is None else f"{s['time_to_threshold_s']:.1f}"
             for s in (ours, theirs)
         ]
+        equal = ["-", "-", "n/a"]
+        if "peer_best_success" in r:
+            t = [s["time_to_peer_best_s"] for s in (ours, theirs)]
+            ratio = r["equal_success_ratio"]
+            equal = [
+                f"{r['peer_best_success']:.3f}",
+                " / ".join("-" if x is None else f"{x:.1f}" for x in t),
+                "jaxnav did not reach it" if ratio is None else f"{ratio:.2f}x",
+            ]
         lines.append(
-            f"| {'-'.join(map(str, r['hidden_sizes']))} | {r['network_weights']:,} "
-            f"| {ours['train_s']:.1f} | {theirs['train_s']:.1f} | {r['wall_time_ratio']:.2f}x "
-            f"| {reach[0]} / {reach[1]} |"
+            f"| {'-'.join(map(str, r['hidden_sizes']))} | {r.get('seed', 0)} "
+            f"| {r['network_weights']:,} | {ours['train_s']:.1f} | {theirs['train_s']:.1f} "
+            f"| {r['wall_time_ratio']:.2f}x | {reach[0]} / {reach[1]} | {' | '.join(equal)} |"
         )
     return "\n".join(lines)

@@ -476,6 +476,13 @@ class Trainer:
         )
 
         def interval(ts: TrainState, log: jax.Array) -> tuple[TrainState, dict]:
+            if len(keys) == 1:
+                # one seed is compiled without the seed axis: XLA's CPU backend reduces
+                # LayerNorm's gradients over the middle axis of [1, batch, width] slowly (PQN
+                # trained 1.34x slower that way); on a GPU the two programs run alike
+                # (benchmarks/results/train_vmap_*)
+                ts, metrics = self.run(jax.tree.map(lambda x: x[0], ts), log, 1)
+                return jax.tree.map(lambda x: x[None], (ts, metrics))
             return jax.vmap(lambda ts: self.run(ts, log, 1), spmd_axis_name=SEEDS)(ts)
 
         interval = jax.jit(
