@@ -125,7 +125,7 @@ def _rejax_side(trainer: Trainer, key: jax.Array) -> Side:
         base = rejax.DQN
         own = {
             "ddqn": c.double,
-            "fill_buffer": c.learning_starts,
+            "fill_buffer": c.learning_start_steps,
             "buffer_size": c.buffer_size,
             "batch_size": c.batch_size,
             "num_epochs": c.updates_per_iteration,

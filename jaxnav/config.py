@@ -48,6 +48,9 @@ class TrainConfig:
     # replay
     buffer_size: int = 100_000
     batch_size: int = 128
+    # env steps of random actions before the first update, rounded up to whole iterations and
+    # to at least n_step of them (the buffer must hold an n-step transition): at 16,384 envs
+    # the default waits one iteration
     learning_starts: int = 10_000
     # sampled transitions per env step (the replay ratio): updates_per_iteration = replay_ratio *
     # num_envs / batch_size gradient steps per vectorized env step, which must be whole; held
@@ -126,11 +129,18 @@ class TrainConfig:
 
     @property
     def first_learning_iteration(self) -> int:
-        """The first iteration whose env-step count reaches ``learning_starts`` (PQN learns
-        from its first rollout)."""
+        """The first iteration whose env-step count reaches ``learning_starts``, and at least
+        the ``n_step``-th, when replay holds an n-step transition (PQN learns from its first
+        rollout)."""
         if self.algo == "pqn":
             return 0
-        return -(-self.learning_starts // self.num_envs)
+        return max(-(-self.learning_starts // self.num_envs), self.n_step)
+
+    @property
+    def learning_start_steps(self) -> int:
+        """Env steps before the first update: ``learning_starts`` rounded up to whole
+        iterations, and to at least ``n_step`` of them for the DQN."""
+        return self.first_learning_iteration * self.steps_per_iteration
 
     @property
     def updates_per_iteration(self) -> int:
@@ -298,15 +308,11 @@ class TrainConfig:
                 f"buffer_size={self.buffer_size} must hold n_step={self.n_step} steps of "
                 f"num_envs={self.num_envs} envs (>= {self.num_envs * self.n_step})"
             )
-        if self.learning_starts >= self.total_timesteps:
+        if self.learning_start_steps >= self.total_timesteps:
             raise ValueError(
-                f"learning_starts={self.learning_starts} is not below "
+                f"learning_starts={self.learning_starts} with num_envs={self.num_envs} and "
+                f"n_step={self.n_step} waits {self.learning_start_steps} env steps, not below "
                 f"total_timesteps={self.total_timesteps}: no update would ever run"
-            )
-        if self.learning_starts < self.num_envs * self.n_step:
-            raise ValueError(
-                f"learning_starts={self.learning_starts} must be at least num_envs * n_step = "
-                f"{self.num_envs * self.n_step} so the buffer holds a full n-step transition"
             )
         updates = self.updates_per_iteration  # ValueError unless a whole number >= 1
         if updates > MAX_UPDATES:

@@ -11,10 +11,12 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 import pytest
+from conftest import TINY_TRAIN  # pytest puts tests/ on sys.path
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from jaxnav.agents import dqn
+from jaxnav.train import Trainer
 
 NUM_ACTIONS = 4
 
@@ -354,6 +356,38 @@ def test_target_updates_exactly_when_env_steps_cross_the_period(stepwise_trainer
     assert updated_at == expected
 
 
+@pytest.mark.parametrize(
+    ("num_envs", "n_step", "first"), [(4, 1, 2), (3, 1, 3), (16, 1, 1), (16, 3, 3), (16384, 1, 1)]
+)
+def test_learning_starts_rounds_up_to_whole_iterations_and_n_step_rows(num_envs, n_step, first):
+    """learning_starts=8 waits whole iterations of num_envs steps, and at least n_step of them
+    (replay must hold an n-step transition), so one default holds at any env count."""
+    c = dataclasses.replace(
+        TINY_TRAIN, num_envs=num_envs, n_step=n_step, batch_size=num_envs * 2,
+        buffer_size=num_envs * 16, total_timesteps=num_envs * 8, log_interval=num_envs,
+    )  # fmt: skip
+    c.validate()
+    assert c.first_learning_iteration == first
+    assert c.learning_start_steps == first * num_envs >= max(c.learning_starts, num_envs * n_step)
+
+
+def test_updates_wait_for_n_step_rows_when_learning_starts_is_below_them(tiny_config):
+    """learning_starts=1 with 3-step returns: the first gradient step is in iteration 3."""
+    c = dataclasses.replace(
+        tiny_config, n_step=3, learning_starts=1, log_interval=tiny_config.num_envs,
+        total_timesteps=5 * tiny_config.num_envs,
+    )  # fmt: skip
+    trainer = Trainer(c)
+    run_one = jax.jit(lambda ts, it: trainer.run(ts, it, 1))
+    ts = jax.jit(trainer.init)(jax.random.key(0))
+    changed = []
+    for it in range(c.iterations):
+        before = ts.params
+        ts, _ = run_one(ts, it)
+        changed.append(not leaves_equal(ts.params, before))
+    assert changed == [False, False, False, True, True]
+
+
 # The compiled runs are the expensive part: each is used by as few tests as possible, since
 # pytest-xdist spreads adjacent tests over workers and each worker compiles its own.
 def seed1_run(train_one):
@@ -377,8 +411,6 @@ def test_same_seed_is_bitwise_reproducible_and_seeds_differ(train_one, seed0_run
 def test_index_observation_trains_exactly_as_onehot(tiny_config, seed0_run):
     """GridMaze's default ``index`` observation, one-hot encoded by the network, gives the
     same run as the ``onehot`` observation, bit for bit, with a 10-value replay."""
-    from jaxnav.train import Trainer
-
     assert tiny_config.env_kwargs.get("obs_mode", "index") == "index"
     kwargs = {**tiny_config.env_kwargs, "obs_mode": "onehot"}
     onehot = Trainer(dataclasses.replace(tiny_config, env_kwargs=kwargs))

@@ -12,7 +12,7 @@ import shutil
 from pathlib import Path
 
 import pytest
-from conftest import TINY_FLAGS  # pytest puts tests/ on sys.path
+from conftest import TINY_FLAGS, TINY_TRAIN  # pytest puts tests/ on sys.path
 
 import jaxnav
 from jaxnav import registration
@@ -109,6 +109,26 @@ def test_per_interval_metrics_too_large_for_memory_are_refused_before_the_run_di
     err = one_line_error(capsys, 2, train_main(argv))
     assert "log_interval=1" in err and "metrics need about" in err and "GiB" in err, err
     assert not list(tmp_path.iterdir())  # neither the run nor its .partial
+
+
+def test_replay_too_large_for_a_gpu_is_refused_per_device(monkeypatch):
+    """On an accelerator the replay buffer and networks are checked against one device's
+    memory (split over --devices), not the host's: a 2.3 GiB replay is refused on a 2 GiB
+    device and accepted on a 4 GiB one (``device_memory_limit`` reads the device's limit,
+    which this CPU has none of)."""
+    import jaxnav.train as train
+
+    monkeypatch.setattr(train, "device_memory_limit", lambda: 2 * 2**30)
+    # 8192 envs x 8192 rows of GridMaze-v0's 10-byte observations (two copies) and 4
+    # four-byte fields: about 2.3 GiB
+    big = dataclasses.replace(
+        TINY_TRAIN, num_envs=8192, buffer_size=8192**2, batch_size=8192 * 2, learning_starts=8192,
+        total_timesteps=8192 * 4, log_interval=8192,
+    )  # fmt: skip
+    with pytest.raises(ValueError, match=r"buffer_size=67108864.*on each of 1 device.*2\.0 GiB"):
+        train.Trainer(big)
+    monkeypatch.setattr(train, "device_memory_limit", lambda: 4 * 2**30)
+    assert train.Trainer(big).config.buffer_rows == 8192
 
 
 def test_layout_bank_too_large_to_build_is_refused():

@@ -131,8 +131,10 @@ class Trainer:
 
     def _check_memory(self) -> None:
         """``ValueError`` for sizes whose replay buffers (PQN: rollouts), networks (params,
-        target, two Adam moments) and per-interval metrics cannot fit in this machine's
-        memory: refused before allocating, and before a run directory is created."""
+        target, two Adam moments) and per-interval metrics cannot fit in memory: on a GPU
+        the replay and networks live in each device's memory, split over ``devices``, the
+        metrics in the host's; on a CPU all in the host's. Refused before allocating, and
+        before a run directory is created."""
         c = self.config
         first = dqn.input_size(*self.network_input)
         sizes = (first, *c.hidden_sizes, self.env.num_actions + 1)
@@ -143,7 +145,17 @@ class Trainer:
         # the host keeps every interval's metrics, [seeds, logs] per name (4-byte values),
         # and a copy of them while a checkpoint is written
         metrics = c.num_seeds * c.num_logs * len(METRIC_NAMES) * 4 * 2
-        need = c.num_seeds * (replay + 4 * 4 * weights) + metrics
+        on_device = c.num_seeds * (replay + 4 * 4 * weights)
+        device_limit = device_memory_limit()
+        if device_limit is not None and on_device / c.devices > device_limit:
+            raise ValueError(
+                f"{self._kept_sizes()}, num_envs={c.num_envs}, num_seeds={c.num_seeds}: "
+                f"replay and networks need about {on_device / c.devices / 2**30:.1f} GiB on "
+                f"each of {c.devices} device(s), more than a device's "
+                f"{device_limit / 2**30:.1f} GiB; use fewer envs, seeds or a smaller "
+                "buffer, or more --devices"
+            )
+        need = metrics + (0 if device_limit is not None else on_device)
         have = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
         if need > have and metrics > need // 2:
             raise ValueError(
@@ -153,15 +165,22 @@ class Trainer:
                 f"machine's {have / 2**30:.1f} GiB; log less often (a larger log_interval)"
             )
         if need > have:
-            # what sizes the transitions kept: PQN's rollout, DQN's replay buffer
-            kept = f"buffer_size={c.buffer_size}"
-            if c.algo == "pqn":
-                kept = f"rollout_length={c.rollout_length}"
             raise ValueError(
-                f"{kept}, hidden_sizes={','.join(map(str, c.hidden_sizes))}"
-                f", num_envs={c.num_envs}, num_seeds={c.num_seeds}: training needs about "
-                f"{need / 2**30:.1f} GiB, more than this machine's {have / 2**30:.1f} GiB"
+                f"{self._kept_sizes()}, num_envs={c.num_envs}, num_seeds={c.num_seeds}: "
+                f"training needs about {need / 2**30:.1f} GiB, more than this machine's "
+                f"{have / 2**30:.1f} GiB"
             )
+
+    def _kept_sizes(self) -> str:
+        """The fields that size what training keeps: the transitions (PQN's rollout, the
+        DQN's replay buffer) and the network."""
+        c = self.config
+        kept = (
+            f"rollout_length={c.rollout_length}"
+            if c.algo == "pqn"
+            else f"buffer_size={c.buffer_size}"
+        )
+        return f"{kept}, hidden_sizes={','.join(map(str, c.hidden_sizes))}"
 
     # -- pieces ---------------------------------------------------------------------
     def default_hparams(self) -> HParams:
@@ -302,7 +321,7 @@ class Trainer:
             step.done,
         )  # fmt: skip
         ts = ts.replace(buffer=buffer)
-        learning = env_steps >= c.learning_starts
+        learning = env_steps >= c.learning_start_steps
 
         def updates(ts):
             ts, aux = jax.lax.scan(
@@ -373,7 +392,7 @@ class Trainer:
         env_steps = it * c.steps_per_iteration
         if c.algo == "dqn":
             key, k_act, k_eps, k_step, k_learn = jax.random.split(ts.key, 5)
-            eps = jnp.where(env_steps >= c.learning_starts, self.epsilon(hp, env_steps), 1.0)
+            eps = jnp.where(env_steps >= c.learning_start_steps, self.epsilon(hp, env_steps), 1.0)
             ts, collected = self._env_step(ts, (k_act, k_eps, k_step), eps)
             tr, q_finite, stats = jax.tree.map(lambda x: x[None], collected)
             ts, aux = self._dqn_learn(ts.replace(key=key), tr, env_steps, k_learn)
@@ -497,10 +516,19 @@ class Trainer:
         return lambda key, obs: jnp.argmax(self.network.apply(params, obs), axis=-1)
 
 
+def device_memory_limit() -> int | None:
+    """Bytes one accelerator can allocate (its first local device's), or None on a CPU,
+    whose arrays live in the host's memory."""
+    device = jax.local_devices()[0]
+    if device.platform == "cpu":
+        return None
+    stats = device.memory_stats() or {}
+    return stats.get("bytes_limit")
+
+
 def make_train(config: TrainConfig) -> Callable[..., tuple[TrainState, dict]]:
     """PureJaxRL-style: ``train(key, hparams=None) -> (final TrainState, metrics per log)``.
 
     No host callback inside: progress is printed between logging intervals by the caller
     (``Trainer.run``), so the compiled program can be stored in JAX's persistent cache."""
     return Trainer(config).train
-

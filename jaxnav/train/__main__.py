@@ -56,7 +56,8 @@ HELP = {
     "loss": "huber or mse",
     "buffer_size": "replay capacity in transitions",
     "batch_size": "transitions per gradient step",
-    "learning_starts": "env steps of random actions before the first update",
+    "learning_starts": "env steps of random actions before the first update (whole "
+    "iterations, at least n_step of them)",
     "replay_ratio": "dqn: sampled transitions per env step; an iteration (one step of every env) "
     "takes replay_ratio * num_envs / batch_size gradient steps, a whole number",
     "n_step": "n-step returns",
