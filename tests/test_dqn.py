@@ -356,6 +356,30 @@ def test_target_updates_exactly_when_env_steps_cross_the_period(stepwise_trainer
     assert updated_at == expected
 
 
+def test_target_updates_at_the_gradient_step_whose_env_steps_cross_the_period(tiny_config):
+    """4 envs and 4 gradient steps an iteration: each step stands for one env step. With a
+    period of 3, iteration i crosses multiples of 3 in (4i, 4i + 4]; the hard copy after the
+    iteration is the parameters after the last step that crossed one, so it equals the final
+    parameters exactly when 4i + 4 is a multiple of 3, and otherwise those of an earlier step
+    (neither the iteration's final parameters nor the previous target)."""
+    c = dataclasses.replace(
+        tiny_config, batch_size=2, replay_ratio=2.0, target_update_period=3,
+        log_interval=tiny_config.num_envs, total_timesteps=10 * tiny_config.num_envs,
+    )  # fmt: skip
+    assert c.updates_per_iteration == 4 and c.num_envs == 4 and c.learning_start_steps == 8
+    trainer = Trainer(c)
+    run_one = jax.jit(lambda ts, it: trainer.run(ts, it, 1))
+    ts = jax.jit(trainer.init)(jax.random.key(0))
+    for it in range(c.iterations):
+        target_before = ts.target_params
+        ts, _ = run_one(ts, it)
+        if it < 2:  # no learning yet
+            assert leaves_equal(ts.target_params, target_before)
+            continue
+        assert not leaves_equal(ts.target_params, target_before)
+        assert leaves_equal(ts.target_params, ts.params) == ((4 * it + 4) % 3 == 0), it
+
+
 @pytest.mark.parametrize(
     ("num_envs", "n_step", "first"), [(4, 1, 2), (3, 1, 3), (16, 1, 1), (16, 3, 3), (16384, 1, 1)]
 )

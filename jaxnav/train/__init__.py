@@ -24,6 +24,7 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 import optax
 from flax import struct
 from jax.sharding import NamedSharding
@@ -323,10 +324,32 @@ class Trainer:
         ts = ts.replace(buffer=buffer)
         learning = env_steps >= c.learning_start_steps
 
-        def updates(ts):
-            ts, aux = jax.lax.scan(
-                self._dqn_update, ts, jax.random.split(key, c.updates_per_iteration)
+        # The target network is updated when env steps cross a multiple of the period
+        # (rejax-style), at the resolution of gradient steps: the iteration's u steps each
+        # stand for num_envs / u of its env steps, and a step whose share crosses a multiple
+        # updates it. So target_update_period means the same at any num_envs, also where one
+        # iteration of many envs spans several periods. Env steps and the offsets are
+        # unbatched under vmap, so the cond skips the parameter-sized work for real.
+        period, u = c.target_update_period, c.updates_per_iteration
+        ends = (np.arange(1, u + 1, dtype=np.int64) * c.num_envs // u).astype(np.int32)
+        starts = np.concatenate([[0], ends[:-1]]).astype(np.int32)
+
+        def update(ts, xs):
+            k, start, end = xs
+            ts, aux = self._dqn_update(ts, k)
+            crossed = (env_steps + end) // period > (env_steps + start) // period
+            ts = jax.lax.cond(
+                crossed,
+                lambda ts: ts.replace(
+                    target_params=dqn.polyak(ts.target_params, ts.params, hp.tau)
+                ),
+                lambda ts: ts,
+                ts,
             )
+            return ts, aux
+
+        def updates(ts):
+            ts, aux = jax.lax.scan(update, ts, (jax.random.split(key, u), starts, ends))
             return ts, jax.tree.map(jnp.mean, aux) | {"updated": jnp.ones((), jnp.int32)}
 
         def no_updates(ts):
@@ -339,17 +362,6 @@ class Trainer:
             }
 
         ts, aux = jax.lax.cond(learning, updates, no_updates, ts)
-        # target network: update when env steps cross a multiple of the period (rejax-style).
-        # The period is static, so ``crossed`` is unbatched under vmap and the cond skips the
-        # parameter-sized work on other iterations.
-        period = c.target_update_period
-        crossed = learning & ((env_steps + c.num_envs) // period > env_steps // period)
-        ts = jax.lax.cond(
-            crossed,
-            lambda ts: ts.replace(target_params=dqn.polyak(ts.target_params, ts.params, hp.tau)),
-            lambda ts: ts,
-            ts,
-        )
         return ts, aux
 
     def _pqn_learn(
