@@ -510,7 +510,7 @@ class Trainer:
             if len(keys) == 1:
                 # one seed is compiled without the seed axis: XLA's CPU backend reduces
                 # LayerNorm's gradients over the middle axis of [1, batch, width] slowly (PQN
-                # trained 1.34x slower that way); on a GPU the two programs run alike
+                # trained 1.26x slower that way); on a GPU the two programs run alike
                 # (benchmarks/results/train_vmap_*)
                 ts, metrics = self.run(jax.tree.map(lambda x: x[0], ts), log, 1)
                 return jax.tree.map(lambda x: x[None], (ts, metrics))
