@@ -483,3 +483,29 @@ def test_env_arg_values_of_every_type_are_accepted_or_one_valueerror():
 
     check()
     print(FUZZ_TRIED)
+
+
+def test_an_unfinished_run_saved_with_updates_per_iteration_resumes_bitwise(
+    tmp_path, capsys, monkeypatch, reference
+):
+    """A run cut after its second checkpoint whose config.json names the older field
+    ``updates_per_iteration`` (1 here: 2 sampled transitions per step of 4 envs, batch 8) in
+    place of ``replay_ratio`` resumes to the uninterrupted run's metrics, bit for bit."""
+    out = tmp_path / "run"
+    interrupted_after(out, monkeypatch, 2)
+    saved = run_dir.partial_dir(out) / "config.json"
+    document = json.loads(saved.read_text())
+    assert document["config"].pop("replay_ratio") == 2.0
+    document["config"]["updates_per_iteration"] = 1
+    saved.write_text(json.dumps(document))
+    # as such a run was saved: its checkpoints carry the checksum of that config.json
+    manifests = sorted(saved.parent.glob(f"checkpoints/*/{checkpoints.MANIFEST}"))
+    assert len(manifests) == 2  # the run resumes from checkpoint 2, not from the start
+    for manifest in manifests:
+        sums = json.loads(manifest.read_text())
+        sums["inputs"]["config.json"] = checkpoints.sha256_of(saved)
+        manifest.write_text(json.dumps(sums))
+    capsys.readouterr()
+    assert train_main(["--resume", str(out)]) == 0
+    assert "run saved to" in capsys.readouterr().out
+    assert_complete(out, reference)
