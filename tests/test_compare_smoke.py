@@ -125,7 +125,14 @@ def test_train_vs_rejax_same_budget_and_curves() -> None:
     assert result["wall_time_ratio"] == pytest.approx(ratio)
     assert result["hidden_sizes"] == [16] and result["network_weights"] == 27 * 16 + 17 * 5
     assert "Wall-time ratio rejax / ours" in train_vs_rejax.table(result)
-    assert f"| 16 | 517 | {sides['jaxnav DQN']['train_s']:.1f} |" in train_vs_rejax.summary(
+    # equal success: rejax's best check, and when each side first reached it
+    best = max(p["success"] for p in sides["rejax DQN"]["curve"])
+    assert result["peer_best_success"] == best and result["seed"] == 0
+    for s in sides.values():
+        reached = [p["train_s"] for p in s["curve"] if p["success"] >= best]
+        assert s["time_to_peer_best_s"] == (reached[0] if reached else None)
+    assert sides["rejax DQN"]["time_to_peer_best_s"] is not None
+    assert f"| 16 | 0 | 517 | {sides['jaxnav DQN']['train_s']:.1f} |" in train_vs_rejax.summary(
         [result]
     )
 
