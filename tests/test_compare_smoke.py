@@ -149,7 +149,7 @@ def test_train_vs_rejax_pqn_pairs_the_same_pqn() -> None:
         assert s["env_steps"] == 512 and [p["env_steps"] for p in s["curve"]] == [256, 512]
     # the same network on both sides: 16 hidden units with LayerNorm, dueling heads
     assert result["network_weights"] == 27 * 16 + 2 * 16 + 17 * 5
-    assert "| 16 | 549 |" in train_vs_rejax.summary([result])
+    assert "| 16 | 0 | 549 |" in train_vs_rejax.summary([result])
 
 
 def test_timed_command_marks_the_line_and_reports_failures(tmp_path: Path) -> None:
