@@ -226,8 +226,9 @@ def run_row(index: int, episodes: int) -> dict[str, Any]:
         "RobotNav-v0", algo="pqn", env_kwargs=env_kwargs, eval_episodes=0, **overrides
     )
     trainer = Trainer(config)
-    # vmapped over a batch of one key, as the training CLI compiles it: 1.43x as fast as
-    # jit(train) on one H100 (benchmarks/results/train_vmap_h100.md); rows 0-19 used jit(train)
+    # vmapped over a batch of one key (rows 0-19 used jit(train)): with the optimizer state of
+    # a leaf per layer that ran 1.43x as fast on one H100; with today's preset the two run
+    # alike (benchmarks/results/train_vmap_h100.md)
     train = jax.jit(jax.vmap(trainer.train))
     keys = jax.random.key(0)[None]
     if index >= SPLIT_KEY_ROWS:

@@ -120,13 +120,6 @@ def make_config(
     return config
 
 
-def one_seed(fn: Callable[[Any, Any], Any]) -> Callable[[Any, Any], Any]:
-    """``fn`` over a seed axis of one (the state's leading axis), as the training CLI compiles
-    ``vmap(train)`` over its seeds: XLA ran the unbatched program of the RobotNav-v0 PQN preset
-    1.43x slower on one H100 (``benchmarks/train_vmap.py``)."""
-    return jax.vmap(fn, in_axes=(0, None))
-
-
 def compile_donating(fn: Callable[[Any, Any], Any], state: Any, arg: Any) -> tuple[Any, float]:
     """``jit(fn, donate_argnums=0)`` lowered and compiled; returns it and the seconds taken."""
     t0 = time.perf_counter()
@@ -294,15 +287,16 @@ def measure(
         prep_s[algo] = time.perf_counter() - t0
         first = first_timed_log(c)
         logs = [jnp.asarray(first + i, jnp.int32) for i in range(ROUNDS + 1)]
-        train_ts = jax.tree.map(lambda x: x[None], ts)  # a copy: the program donates it
+        # one seed without a seed axis, as the training CLI compiles it (``Trainer.sharded``)
+        train_ts = jax.tree.map(jnp.copy, ts)  # a copy: the program donates it
         compiled, compile_s = compile_donating(
-            one_seed(lambda ts, log, trainer=trainer: trainer.run(ts, log, 1)), train_ts, logs[0]
+            lambda ts, log, trainer=trainer: trainer.run(ts, log, 1), train_ts, logs[0]
         )
         programs[f"{algo} train"] = Program(compiled, train_ts, logs, compile_s)
-        update_ts = jax.tree.map(lambda x: x[None], ts.replace(buffer=None))  # reads no buffer
+        update_ts = jax.tree.map(jnp.copy, ts.replace(buffer=None))  # reads no buffer
         num_updates = iterations * c.updates_per_learning_iteration
         compiled, compile_s = compile_donating(
-            one_seed(update_program(trainer, num_updates)), update_ts, batch
+            update_program(trainer, num_updates), update_ts, batch
         )
         programs[f"{algo} update"] = Program(compiled, update_ts, [batch] * (ROUNDS + 1), compile_s)
 
