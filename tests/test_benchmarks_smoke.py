@@ -125,3 +125,37 @@ def test_multiprocess_smoke(tmp_path: Path) -> None:
     assert row == result["rows"][0]
     assert row["one_process_twice_equal"] and row["one_vs_multi_process_equal"]
     assert "| envs | bitwise equal | bitwise equal |" in out.with_suffix(".md").read_text()
+
+
+def test_profile_training_sums_device_kernels_by_kind(tmp_path: Path, capsys) -> None:
+    from benchmarks import profile_training as pt
+
+    device, host = (
+        {"ph": "M", "name": "process_name", "pid": pid, "args": {"name": name}}
+        for pid, name in ((1, "/device:GPU:0"), (2, "/host:CPU"))
+    )
+    kernels = [
+        ("gemm_fusion_dot_general_3", 100, 30),
+        ("input_add_reduce_fusion_3", 140, 50),
+        ("input_add_reduce_fusion_3", 200, 50),
+        ("loop_convert_fusion", 260, 10),
+        ("void cub::detail::radix_sort::DeviceRadixSortOnesweepKernel", 275, 5),
+    ]
+    events = [device, host, {"ph": "X", "pid": 2, "name": "a host op", "ts": 0, "dur": 999}]
+    events += [{"ph": "X", "pid": 1, "name": n, "ts": t, "dur": d} for n, t, d in kernels]
+    s = pt.summarize(pt.device_kernels({"traceEvents": events}))
+    assert (s["span_us"], s["busy_us"], s["kernels"]) == (180, 145, 5)
+    assert s["by_kind_us"] == {
+        "matrix products": 30, "reductions": 100, "conversions": 10, "sorts": 5,
+        "gathers and scatters": 0, "copies": 0, "other": 0,
+    }  # fmt: skip
+    assert s["top"][0] == {
+        "name": "input_add_reduce_fusion_3", "kind": "reductions", "calls": 2, "total_us": 100,
+    }  # fmt: skip
+    # this CPU runs no device kernels: one line, exit 2, nothing written
+    out = tmp_path / "p.json"
+    with pytest.raises(SystemExit) as exit_info:
+        pt.main(["--env", "GridMaze-v0", "--iterations", "1", "--repeats", "1", "--out", str(out)])
+    err = capsys.readouterr().err.strip()
+    assert exit_info.value.code == 2 and err.count("\n") == 0 and "accelerator" in err, err
+    assert not out.exists()

@@ -1,0 +1,179 @@
+"""Where a training iteration's GPU time goes: device kernels of one logging interval, by kind.
+
+    python -m benchmarks.profile_training [--env RobotNav-v0] [--algo pqn] [--iterations 2]
+        [--repeats 2] [--out benchmarks/results/profile_training.json]
+
+The env's preset for the algorithm (``TrainConfig.for_env``) with a logging interval of
+``--iterations`` iterations; ``Trainer.run(state, log, 1)`` is compiled once, run twice untimed,
+then ``--repeats`` times under ``jax.profiler.trace`` (a Perfetto trace). Every device kernel of
+the trace is put in one kind by its name (``KINDS``: matrix products, reductions, dtype
+conversions, sorts, gathers and scatters, copies, the rest) and its time summed. Reported: the
+span from the first kernel's start to the last one's end, the kernels' total time (so the
+fraction of the span the device was busy), each kind's time and share, and the kernels that
+took longest. Needs an accelerator: a CPU run's trace has no device kernels and the script
+says so in one line (exit 2).
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import gzip
+import json
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+
+from benchmarks.common import machine_info, write_results
+from jaxnav.config import TrainConfig
+from jaxnav.train import Trainer
+
+# kind -> substrings of a kernel's name (first match wins, in this order)
+KINDS: dict[str, tuple[str, ...]] = {
+    "matrix products": ("gemm", "nvjet", "cublas", "cutlass", "dot"),
+    "reductions": ("reduce",),
+    "conversions": ("convert",),
+    "sorts": ("sort",),
+    "gathers and scatters": ("gather", "scatter", "dynamic"),
+    "copies": ("copy", "memcpy", "memset", "transpose"),
+}
+OTHER = "other"
+TOP = 15
+
+
+def kind_of(name: str) -> str:
+    low = name.lower()
+    return next((k for k, keys in KINDS.items() if any(s in low for s in keys)), OTHER)
+
+
+def device_kernels(trace: dict[str, Any]) -> list[dict[str, Any]]:
+    """The complete events (``ph == "X"``) of the trace's device processes (named
+    ``/device:...``), i.e. the kernels and copies the accelerator ran."""
+    events = trace["traceEvents"] if isinstance(trace, dict) else trace
+    devices = {
+        e["pid"]
+        for e in events
+        if e.get("ph") == "M"
+        and e.get("name") == "process_name"
+        and str(e.get("args", {}).get("name", "")).startswith("/device:")
+    }
+    return [e for e in events if e.get("ph") == "X" and e.get("pid") in devices]
+
+
+def summarize(kernels: list[dict[str, Any]]) -> dict[str, Any]:
+    """Span, busy time, time per kind and the longest kernels (microseconds)."""
+    if not kernels:
+        raise ValueError("the trace has no device kernels (profiling needs an accelerator)")
+    start = min(e["ts"] for e in kernels)
+    end = max(e["ts"] + e.get("dur", 0) for e in kernels)
+    by_kind: dict[str, float] = dict.fromkeys([*KINDS, OTHER], 0.0)
+    by_name: dict[str, list[float]] = collections.defaultdict(lambda: [0, 0.0])
+    for e in kernels:
+        by_kind[kind_of(e["name"])] += e.get("dur", 0)
+        by_name[e["name"]][0] += 1
+        by_name[e["name"]][1] += e.get("dur", 0)
+    busy = sum(by_kind.values())
+    top = sorted(by_name.items(), key=lambda kv: -kv[1][1])[:TOP]
+    return {
+        "span_us": end - start,
+        "busy_us": busy,
+        "kernels": len(kernels),
+        "by_kind_us": by_kind,
+        "top": [
+            {"name": n, "kind": kind_of(n), "calls": int(c), "total_us": t} for n, (c, t) in top
+        ],
+    }
+
+
+def profile(env: str, algo: str, iterations: int, repeats: int) -> dict[str, Any]:
+    base = TrainConfig.for_env(env, algo=algo, eval_episodes=0)
+    steps = iterations * base.steps_per_iteration
+    config = TrainConfig.for_env(
+        env, algo=algo, eval_episodes=0, log_interval=steps, total_timesteps=steps * 4
+    )
+    trainer = Trainer(config)
+    state = jax.jit(trainer.init)(jax.random.key(0))
+    interval = jax.jit(lambda ts: trainer.run(ts, jnp.int32(1), 1)[0])
+    interval = interval.lower(state).compile()
+    for _ in range(2):
+        jax.block_until_ready(interval(state))
+    with tempfile.TemporaryDirectory() as tmp:
+        with jax.profiler.trace(tmp, create_perfetto_trace=True):
+            for _ in range(repeats):
+                jax.block_until_ready(interval(state))
+        path = next(Path(tmp).rglob("perfetto_trace.json.gz"))
+        trace = json.loads(gzip.decompress(path.read_bytes()))
+    return {
+        "env": env,
+        "algo": algo,
+        "iterations": iterations,
+        "repeats": repeats,
+        "env_steps_per_repeat": steps,
+        "config": {
+            "num_envs": config.num_envs,
+            "minibatch_size": config.minibatch_size,
+            "updates_per_iteration": config.updates_per_learning_iteration,
+            "hidden_sizes": list(config.hidden_sizes),
+            "compute_dtype": config.compute_dtype,
+        },
+        **summarize(device_kernels(trace)),
+    }
+
+
+def markdown(result: dict[str, Any]) -> str:
+    m, c = result["machine"], result["config"]
+    span, busy = result["span_us"], result["busy_us"]
+    lines = [
+        f"# Device time of training, by kernel kind: {result['env']}, {result['algo']}\n",
+        f"`{result['command']}`; {m['devices'][0]}, jax {m['jax_version']}, {m['date'][:10]}.",
+        f"{result['repeats']} logging intervals of {result['iterations']} iterations "
+        f"({result['env_steps_per_repeat']:,} env steps each; {c['num_envs']:,} envs, "
+        f"{c['updates_per_iteration']} gradient steps of {c['minibatch_size']:,} an iteration, "
+        f"network {'-'.join(map(str, c['hidden_sizes']))} in {c['compute_dtype']}).\n",
+        f"Span {span / 1e3:.1f} ms, kernels busy {busy / 1e3:.1f} ms ({busy / span:.0%} of the "
+        f"span), {result['kernels']:,} kernels.\n",
+        "| kind | ms | share of kernel time |",
+        "|---|---:|---:|",
+    ]
+    for kind, us in sorted(result["by_kind_us"].items(), key=lambda kv: -kv[1]):
+        lines.append(f"| {kind} | {us / 1e3:.1f} | {us / busy:.0%} |")
+    lines += ["", "| longest kernels | kind | calls | ms |", "|---|---|---:|---:|"]
+    for t in result["top"]:
+        lines.append(
+            f"| `{t['name'][:70]}` | {t['kind']} | {t['calls']} | {t['total_us'] / 1e3:.1f} |"
+        )
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--env", default="RobotNav-v0")
+    p.add_argument("--algo", default="pqn")
+    p.add_argument("--iterations", type=int, default=2, help="iterations per logging interval")
+    p.add_argument("--repeats", type=int, default=2, help="intervals traced")
+    p.add_argument("--out", type=Path, default=Path("benchmarks/results/profile_training.json"))
+    args = p.parse_args(argv)
+    if min(args.iterations, args.repeats) < 1:
+        p.error("--iterations and --repeats must be >= 1")
+    try:
+        result = profile(args.env, args.algo, args.iterations, args.repeats)
+    except ValueError as e:
+        print(f"benchmarks.profile_training: error: {e}", file=sys.stderr)
+        raise SystemExit(2) from None
+    given = sys.argv[1:] if argv is None else argv
+    result = {
+        "machine": machine_info(),
+        "command": " ".join(["python -m benchmarks.profile_training", *given]),
+        **result,
+    }
+    write_results(args.out, result, markdown(result))
+    print(markdown(result))
+    return result
+
+
+if __name__ == "__main__":
+    main()
