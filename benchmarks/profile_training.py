@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import collections
+import dataclasses
 import gzip
 import json
 import sys
@@ -90,11 +91,9 @@ def summarize(kernels: list[dict[str, Any]]) -> dict[str, Any]:
 
 
 def profile(env: str, algo: str, iterations: int, repeats: int) -> dict[str, Any]:
-    base = TrainConfig.for_env(env, algo=algo, eval_episodes=0)
-    steps = iterations * base.steps_per_iteration
-    config = TrainConfig.for_env(
-        env, algo=algo, eval_episodes=0, log_interval=steps, total_timesteps=steps * 4
-    )
+    preset = TrainConfig.for_env(env, algo=algo, eval_episodes=0)
+    steps = iterations * preset.steps_per_iteration
+    config = dataclasses.replace(preset, log_interval=steps, total_timesteps=steps * 4)
     trainer = Trainer(config)
     state = jax.jit(trainer.init)(jax.random.key(0))
     interval = jax.jit(lambda ts: trainer.run(ts, jnp.int32(1), 1)[0])

@@ -201,23 +201,23 @@ def measure(
             )
     out = {}
     for side in sides:
-        reached = [p for p in side["curve"] if p["success"] >= threshold]
+        reached = first_reaching(side["curve"], threshold)
         out[side["name"]] = {
             "compile_s": side["compile_s"],
             "train_s": side["train_s"],
             "env_steps": config.num_logs * chunk,
             "env_steps_per_s": config.num_logs * chunk / side["train_s"],
             "final_success": side["curve"][-1]["success"],
-            "time_to_threshold_s": reached[0]["train_s"] if reached else None,
-            "steps_to_threshold": reached[0]["env_steps"] if reached else None,
+            "time_to_threshold_s": None if reached is None else reached["train_s"],
+            "steps_to_threshold": None if reached is None else reached["env_steps"],
             "curve": side["curve"],
         }
     ours, theirs = (out[s["name"]] for s in sides)
     # equal success: rejax's best of the run, and when each side first reached it
     peer_best = max(p["success"] for p in theirs["curve"])
     for side in (ours, theirs):
-        reached = [p["train_s"] for p in side["curve"] if p["success"] >= peer_best]
-        side["time_to_peer_best_s"] = reached[0] if reached else None
+        reached = first_reaching(side["curve"], peer_best)
+        side["time_to_peer_best_s"] = None if reached is None else reached["train_s"]
     t_ours, t_theirs = ours["time_to_peer_best_s"], theirs["time_to_peer_best_s"]
     params = sides[0]["q_params"](sides[0]["state"])
     return {
@@ -233,6 +233,11 @@ def measure(
         "peer_best_success": peer_best,
         "equal_success_ratio": None if t_ours is None else t_theirs / t_ours,
     }
+
+
+def first_reaching(curve: list[dict[str, Any]], success: float) -> dict[str, Any] | None:
+    """The first point of a success curve at or above ``success`` (None: never)."""
+    return next((p for p in curve if p["success"] >= success), None)
 
 
 def table(result: dict[str, Any]) -> str:
@@ -256,8 +261,6 @@ def table(result: dict[str, Any]) -> str:
 
 def equal_success(result: dict[str, Any]) -> str:
     """One line: when each side first reached the best success rejax reached."""
-    if "peer_best_success" not in result:
-        return "At equal success: n/a (not measured)"
     ours, theirs = result["sides"].values()
     t_ours, t_theirs = ours["time_to_peer_best_s"], theirs["time_to_peer_best_s"]
     ratio = result["equal_success_ratio"]
@@ -265,6 +268,13 @@ def equal_success(result: dict[str, Any]) -> str:
     if ratio is None:
         return head + f"jaxnav never reached it / rejax {t_theirs:.1f}"
     return head + f"jaxnav {t_ours:.1f} / rejax {t_theirs:.1f}, rejax / ours **{ratio:.2f}x**"
+
+
+def seconds_each(result: dict[str, Any], field: str) -> str:
+    """A time of each side, "jaxnav / rejax" ("-" where that side never reached it)."""
+    return " / ".join(
+        "-" if s[field] is None else f"{s[field]:.1f}" for s in result["sides"].values()
+    )
 
 
 def summary(results: list[dict[str, Any]]) -> str:
@@ -278,22 +288,12 @@ def summary(results: list[dict[str, Any]]) -> str:
     ]
     for r in results:
         ours, theirs = r["sides"].values()
-        reach = [
-            "-" if s["time_to_threshold_s"] is None else f"{s['time_to_threshold_s']:.1f}"
-            for s in (ours, theirs)
-        ]
-        equal = ["-", "-", "n/a"]
-        if "peer_best_success" in r:
-            t = [s["time_to_peer_best_s"] for s in (ours, theirs)]
-            ratio = r["equal_success_ratio"]
-            equal = [
-                f"{r['peer_best_success']:.3f}",
-                " / ".join("-" if x is None else f"{x:.1f}" for x in t),
-                "jaxnav did not reach it" if ratio is None else f"{ratio:.2f}x",
-            ]
+        ratio = r["equal_success_ratio"]
         lines.append(
-            f"| {'-'.join(map(str, r['hidden_sizes']))} | {r.get('seed', 0)} "
+            f"| {'-'.join(map(str, r['hidden_sizes']))} | {r['seed']} "
             f"| {r['network_weights']:,} | {ours['train_s']:.1f} | {theirs['train_s']:.1f} "
-            f"| {r['wall_time_ratio']:.2f}x | {reach[0]} / {reach[1]} | {' | '.join(equal)} |"
+            f"| {r['wall_time_ratio']:.2f}x | {seconds_each(r, 'time_to_threshold_s')} "
+            f"| {r['peer_best_success']:.3f} | {seconds_each(r, 'time_to_peer_best_s')} "
+            f"| {'jaxnav did not reach it' if ratio is None else f'{ratio:.2f}x'} |"
         )
     return "\n".join(lines)

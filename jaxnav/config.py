@@ -241,8 +241,8 @@ class TrainConfig:
             if not ok or not lo <= v <= hi:
                 raise ValueError(f"{name}={v!r}: must be a number in [{lo}, {hi}]")
         positive = ("lr", "max_grad_norm", "tau", "replay_ratio")
-        if any(getattr(self, n) <= 0 for n in positive):
-            bad = next(n for n in positive if getattr(self, n) <= 0)
+        bad = next((n for n in positive if getattr(self, n) <= 0), None)
+        if bad is not None:
             raise ValueError(f"{bad}={getattr(self, bad)!r}: must be positive")
         if not self.hidden_sizes or any(
             not isinstance(h, int) or isinstance(h, bool) or not 1 <= h <= 65536

@@ -356,6 +356,18 @@ def test_target_updates_exactly_when_env_steps_cross_the_period(stepwise_trainer
     assert updated_at == expected
 
 
+def iteration_by_iteration(config):
+    """``(it, state before, state after)`` of each iteration of ``config``, run one iteration
+    per call of ``Trainer.run`` as ``stepwise_trainer`` does (its log_interval: num_envs)."""
+    trainer = Trainer(dataclasses.replace(config, log_interval=config.num_envs))
+    run_one = jax.jit(lambda ts, it: trainer.run(ts, it, 1))
+    ts = jax.jit(trainer.init)(jax.random.key(0))
+    for it in range(trainer.config.iterations):
+        before = ts
+        ts, _ = run_one(ts, it)
+        yield it, before, ts
+
+
 def test_target_updates_at_the_gradient_step_whose_env_steps_cross_the_period(tiny_config):
     """4 envs and 4 gradient steps an iteration: each step stands for one env step. With a
     period of 3, iteration i crosses multiples of 3 in (4i, 4i + 4]; the hard copy after the
@@ -364,19 +376,14 @@ def test_target_updates_at_the_gradient_step_whose_env_steps_cross_the_period(ti
     (neither the iteration's final parameters nor the previous target)."""
     c = dataclasses.replace(
         tiny_config, batch_size=2, replay_ratio=2.0, target_update_period=3,
-        log_interval=tiny_config.num_envs, total_timesteps=10 * tiny_config.num_envs,
+        total_timesteps=10 * tiny_config.num_envs,
     )  # fmt: skip
     assert c.updates_per_iteration == 4 and c.num_envs == 4 and c.learning_start_steps == 8
-    trainer = Trainer(c)
-    run_one = jax.jit(lambda ts, it: trainer.run(ts, it, 1))
-    ts = jax.jit(trainer.init)(jax.random.key(0))
-    for it in range(c.iterations):
-        target_before = ts.target_params
-        ts, _ = run_one(ts, it)
+    for it, before, ts in iteration_by_iteration(c):
         if it < 2:  # no learning yet
-            assert leaves_equal(ts.target_params, target_before)
+            assert leaves_equal(ts.target_params, before.target_params)
             continue
-        assert not leaves_equal(ts.target_params, target_before)
+        assert not leaves_equal(ts.target_params, before.target_params)
         assert leaves_equal(ts.target_params, ts.params) == ((4 * it + 4) % 3 == 0), it
 
 
@@ -398,17 +405,11 @@ def test_learning_starts_rounds_up_to_whole_iterations_and_n_step_rows(num_envs,
 def test_updates_wait_for_n_step_rows_when_learning_starts_is_below_them(tiny_config):
     """learning_starts=1 with 3-step returns: the first gradient step is in iteration 3."""
     c = dataclasses.replace(
-        tiny_config, n_step=3, learning_starts=1, log_interval=tiny_config.num_envs,
-        total_timesteps=5 * tiny_config.num_envs,
-    )  # fmt: skip
-    trainer = Trainer(c)
-    run_one = jax.jit(lambda ts, it: trainer.run(ts, it, 1))
-    ts = jax.jit(trainer.init)(jax.random.key(0))
-    changed = []
-    for it in range(c.iterations):
-        before = ts.params
-        ts, _ = run_one(ts, it)
-        changed.append(not leaves_equal(ts.params, before))
+        tiny_config, n_step=3, learning_starts=1, total_timesteps=5 * tiny_config.num_envs
+    )
+    changed = [
+        not leaves_equal(ts.params, before.params) for _, before, ts in iteration_by_iteration(c)
+    ]
     assert changed == [False, False, False, True, True]
 
 
