@@ -209,9 +209,16 @@ ROWS: list[tuple[str, dict[str, Any], dict[str, Any]]] = [
         {**NAV, **CLEAR, "waypoint_moves": 8, "speed": 1.5, "max_steps": 800},
         {**FEWER, "total_timesteps": 838_860_800},
     ),
+    (
+        "row 28 + the fused LayerNorm (RobotNav-v0 PQN preset)",
+        {**NAV, **CLEAR, "waypoint_moves": 8, "speed": 1.5, "max_steps": 800},
+        {**FEWER, "total_timesteps": 838_860_800, "fused_layer_norm": True},
+    ),
 ]
 # rows from 20 train from jax.random.split(key(0), 1), the key of the first of a batch of seeds
 SPLIT_KEY_ROWS = 20
+# rows before 29 ran flax's LayerNorm, before the preset fused it
+FUSED_ROWS = 29
 TEST_KEY = 1234
 
 
@@ -222,6 +229,8 @@ def families(config: TrainConfig) -> list[Family]:
 
 def run_row(index: int, episodes: int) -> dict[str, Any]:
     label, env_kwargs, overrides = ROWS[index]
+    if index < FUSED_ROWS:
+        overrides = {"fused_layer_norm": False, **overrides}
     config = TrainConfig.for_env(
         "RobotNav-v0", algo="pqn", env_kwargs=env_kwargs, eval_episodes=0, **overrides
     )

@@ -6,11 +6,11 @@
 The env's preset for the algorithm (``TrainConfig.for_env``) with a logging interval of
 ``--iterations`` iterations; ``Trainer.run(state, log, 1)`` is compiled once, run twice untimed,
 then ``--repeats`` times under ``jax.profiler.trace`` (a Perfetto trace). Every device kernel of
-the trace is put in one kind by its name (``KINDS``: matrix products, reductions, dtype
-conversions, sorts, gathers and scatters, copies, the rest) and its time summed. Reported: the
-span from the first kernel's start to the last one's end, the kernels' total time (so the
-fraction of the span the device was busy), each kind's time and share, and the kernels that
-took longest. Needs an accelerator: a CPU run's trace has no device kernels and the script
+the trace is put in one kind by its name (``KINDS``: the Pallas LayerNorm kernels, matrix
+products, reductions, dtype conversions, sorts, gathers and scatters, copies, the rest) and its
+time summed. Reported: the span from the first kernel's start to the last one's end, the
+kernels' total time (so the fraction of the span the device was busy), each kind's time and
+share, and the kernels that took longest. Needs an accelerator: a CPU run's trace has no device kernels and the script
 says so in one line (exit 2).
 """
 
@@ -35,6 +35,7 @@ from jaxnav.train import Trainer
 
 # kind -> substrings of a kernel's name (first match wins, in this order)
 KINDS: dict[str, tuple[str, ...]] = {
+    "LayerNorm kernels (Pallas)": ("layer_norm_relu",),  # agents.layer_norm, named so
     "matrix products": ("gemm", "nvjet", "cublas", "cutlass", "dot"),
     "reductions": ("reduce",),
     "conversions": ("convert",),

@@ -65,7 +65,7 @@ import jax.numpy as jnp
 from benchmarks.common import machine_info, write_results
 from jaxnav.agents import dqn
 from jaxnav.agents.dqn import COMPUTE_DTYPES
-from jaxnav.cli import one_line, parse_env_arg
+from jaxnav.cli import one_line, parse_bool, parse_env_arg
 from jaxnav.config import ALGOS, MAX_STEPS, TrainConfig
 from jaxnav.train import Trainer, TrainState
 
@@ -75,7 +75,7 @@ ENV_ALONE = "env alone"
 ENV_MIN_S = 0.2  # seconds of a timed env-alone run, at least
 PQN_KNOBS = ("rollout_length", "num_minibatches", "num_epochs")
 DQN_KNOBS = ("batch_size", "replay_ratio")
-SHARED_KNOBS = ("hidden_sizes", "compute_dtype")
+SHARED_KNOBS = ("hidden_sizes", "compute_dtype", "layer_norm", "fused_layer_norm")
 
 
 def first_timed_log(config: TrainConfig) -> int:
@@ -357,10 +357,14 @@ def markdown(result: dict[str, Any]) -> str:
     first = result["results"][0]["config"]
     kwargs = "".join(f" {k}={v}" for k, v in result["env_kwargs"].items())
     m = result["machine"]
+    norm = "no LayerNorm"
+    if first["layer_norm"]:
+        norm = "fused LayerNorm" if first.get("fused_layer_norm") else "flax's LayerNorm"
     head = (
         f"{result['env']}{kwargs}, network {'-'.join(map(str, first['hidden_sizes']))} "
-        f"{first['compute_dtype']}, {result['iterations']} iterations per timed run, median of "
-        f"{result['rounds']}; {m['backend']} ({m['cpu_count']} cores), {m['date'][:10]}"
+        f"{first['compute_dtype']} with {norm}, {result['iterations']} iterations per timed "
+        f"run, median of {result['rounds']}; {m['backend']} ({m['cpu_count']} cores), "
+        f"{m['date'][:10]}"
     )
     return head + "\n\n" + table(result["results"], result["env_alone"])
 
@@ -457,6 +461,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     )
     p.add_argument("--hidden-sizes", help=f"comma-separated MLP widths {knob}")
     p.add_argument("--compute-dtype", choices=COMPUTE_DTYPES, help=knob)
+    p.add_argument("--layer-norm", type=parse_bool, metavar="{true,false}", help=knob)
+    p.add_argument("--fused-layer-norm", type=parse_bool, metavar="{true,false}", help=knob)
     p.add_argument("--out", type=Path, default=DEFAULT_OUT, help="JSON output path")
     args = p.parse_args(argv)
     args.algos = list(dict.fromkeys(a.strip() for a in args.algos.split(",") if a.strip()))

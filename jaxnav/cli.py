@@ -94,6 +94,16 @@ def fail(prog: str, message: str) -> int:
     return 2
 
 
+def parse_bool(text: str) -> bool:
+    """An argparse ``type`` for true/false flags (also 1/0, yes/no, on/off)."""
+    t = text.lower()
+    if t in ("true", "1", "yes", "on"):
+        return True
+    if t in ("false", "0", "no", "off"):
+        return False
+    raise argparse.ArgumentTypeError(f"invalid boolean {text!r} (use true or false)")
+
+
 def parse_env_arg(text: str) -> tuple[str, Any]:
     """``KEY=VALUE`` to ``(key, value)``, the value as JSON where it parses, else a string."""
     key, sep, value = text.partition("=")

@@ -43,6 +43,9 @@ class TrainConfig:
     dueling: bool = True
     double: bool = True
     layer_norm: bool = False
+    # with layer_norm: LayerNorm and ReLU as one op with a float32 gradient
+    # (``agents.layer_norm``), Pallas kernels on one GPU, the same math in jnp elsewhere
+    fused_layer_norm: bool = False
     compute_dtype: str = "float32"  # of the hidden layers' matrix products
     loss: str = "huber"
     # replay
@@ -251,7 +254,7 @@ class TrainConfig:
             raise ValueError(
                 f"hidden_sizes={self.hidden_sizes!r}: must be one or more integers in [1, 65536]"
             )
-        for name in ("dueling", "double", "layer_norm"):
+        for name in ("dueling", "double", "layer_norm", "fused_layer_norm"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"{name}={getattr(self, name)!r}: must be true or false")
         for name, choices in (("algo", ALGOS), ("compute_dtype", COMPUTE_DTYPES)):

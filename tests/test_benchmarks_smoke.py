@@ -140,14 +140,15 @@ def test_profile_training_sums_device_kernels_by_kind(tmp_path: Path, capsys) ->
         ("input_add_reduce_fusion_3", 200, 50),
         ("loop_convert_fusion", 260, 10),
         ("void cub::detail::radix_sort::DeviceRadixSortOnesweepKernel", 275, 5),
+        ("layer_norm_relu_backward__2", 290, 10),  # agents.layer_norm's Pallas kernel
     ]
     events = [device, host, {"ph": "X", "pid": 2, "name": "a host op", "ts": 0, "dur": 999}]
     events += [{"ph": "X", "pid": 1, "name": n, "ts": t, "dur": d} for n, t, d in kernels]
     s = pt.summarize(pt.device_kernels({"traceEvents": events}))
-    assert (s["span_us"], s["busy_us"], s["kernels"]) == (180, 145, 5)
+    assert (s["span_us"], s["busy_us"], s["kernels"]) == (200, 155, 6)
     assert s["by_kind_us"] == {
-        "matrix products": 30, "reductions": 100, "conversions": 10, "sorts": 5,
-        "gathers and scatters": 0, "copies": 0, "other": 0,
+        "LayerNorm kernels (Pallas)": 10, "matrix products": 30, "reductions": 100,
+        "conversions": 10, "sorts": 5, "gathers and scatters": 0, "copies": 0, "other": 0,
     }  # fmt: skip
     assert s["top"][0] == {
         "name": "input_add_reduce_fusion_3", "kind": "reductions", "calls": 2, "total_us": 100,

@@ -249,9 +249,10 @@ def test_cli_refuses_an_unknown_algorithm_in_one_line(tmp_path, capsys):
 
 # ------------------------------------------------------------------ learning
 @pytest.mark.slow
-def test_pqn_learns_a_small_maze():
+@pytest.mark.parametrize("fused", [False, True], ids=["flax-norm", "fused-norm"])
+def test_pqn_learns_a_small_maze(fused):
     """The bar of test_learning.py's DQN: a 7x7 maze, greedy success >= 0.95 (0.99-1.0 over
-    seeds 0-4, 0.2 s of training each on one CPU core)."""
+    seeds 0-4, 0.2 s of training each on one CPU core), also with the fused LayerNorm."""
     config = TrainConfig.for_env(
         "GridMaze-v0",
         algo="pqn",
@@ -260,6 +261,7 @@ def test_pqn_learns_a_small_maze():
         total_timesteps=65_536,
         eps_decay_steps=32_000,
         log_interval=16_384,
+        fused_layer_norm=fused,
     )
     trainer = Trainer(config)
     state, metrics = jax.jit(trainer.train)(jax.random.key(0))

@@ -16,6 +16,8 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from jaxnav.agents.layer_norm import layer_norm_relu
+
 
 def expand_onehot(obs: jax.Array, onehot_sizes: Sequence[int]) -> jax.Array:
     """float32 ``obs`` with value i one-hot encoded into ``onehot_sizes[i]`` columns (kept as
@@ -55,6 +57,7 @@ def check_input_fits(env_id: str, have: InputSpec, want: InputSpec) -> None:
 
 
 COMPUTE_DTYPES = ("float32", "bfloat16")
+NORM_IMPLS = ("flax", "fused", "pallas")  # QNetwork.norm_impl
 # the paper's two agents (Sec. IV) as QNetwork / loss flags, and how tables and figures name
 # them and the random agent
 PAPER_AGENTS = {
@@ -68,6 +71,26 @@ AGENT_LABELS = {
 }
 
 
+class DenseParams(nn.Module):
+    """``nn.Dense``'s parameters (initializers, names, dtype) without its product."""
+
+    features: int
+
+    @nn.compact
+    def __call__(self, in_features: int) -> tuple[jax.Array, jax.Array]:
+        kernel = self.param("kernel", nn.initializers.lecun_normal(), (in_features, self.features))
+        return kernel, self.param("bias", nn.initializers.zeros_init(), (self.features,))
+
+
+class LayerNormParams(nn.Module):
+    """``nn.LayerNorm``'s parameters (scale, then bias) without its normalization."""
+
+    @nn.compact
+    def __call__(self, features: int) -> tuple[jax.Array, jax.Array]:
+        scale = self.param("scale", nn.initializers.ones_init(), (features,))
+        return scale, self.param("bias", nn.initializers.zeros_init(), (features,))
+
+
 class QNetwork(nn.Module):
     """MLP Q-network; the paper's is 512-256-128-64 with dueling heads.
 
@@ -75,7 +98,10 @@ class QNetwork(nn.Module):
     first; one-hot times a dense layer is an embedding lookup, the same function.
     ``layer_norm`` normalizes each hidden layer before its ReLU (PQN's network: it keeps
     bootstrapped targets from diverging without a target network). ``compute_dtype``
-    "bfloat16" runs the matrix products in bfloat16 (parameters and Q-values stay float32)."""
+    "bfloat16" runs the matrix products in bfloat16 (parameters and Q-values stay float32).
+    ``norm_impl`` computes LayerNorm and ReLU: "flax" (``nn.LayerNorm``, ``nn.relu``), or as
+    one op with a float32 gradient (``agents.layer_norm``) in jnp ("fused") or as Pallas
+    kernels ("pallas"); all three have the same parameters, initialized alike."""
 
     num_actions: int
     hidden_sizes: Sequence[int] = (512, 256, 128, 64)
@@ -83,6 +109,7 @@ class QNetwork(nn.Module):
     onehot_sizes: tuple[int, ...] | None = None
     layer_norm: bool = False
     compute_dtype: str = "float32"
+    norm_impl: str = "flax"
 
     @nn.compact
     def __call__(self, obs: jax.Array) -> jax.Array:
@@ -90,15 +117,27 @@ class QNetwork(nn.Module):
             x = obs.astype(jnp.float32)  # observations may be stored compactly (int8)
         else:
             x = expand_onehot(obs, self.onehot_sizes)
+        if self.norm_impl not in NORM_IMPLS:
+            raise ValueError(
+                f"norm_impl={self.norm_impl!r}: must be one of {', '.join(NORM_IMPLS)}"
+            )
         dtype = jnp.dtype(self.compute_dtype)
-        for width in self.hidden_sizes:
+        fused = self.layer_norm and self.norm_impl != "flax"
+        for i, width in enumerate(self.hidden_sizes):
+            if fused:
+                # the names flax gives nn.Dense and nn.LayerNorm: the same parameter tree
+                kernel, dense_bias = DenseParams(width, name=f"Dense_{i}")(x.shape[-1])
+                scale, bias = LayerNormParams(name=f"LayerNorm_{i}")(width)
+                z = jnp.dot(x.astype(dtype), kernel.astype(dtype))
+                x = layer_norm_relu(z, dense_bias, scale, bias, self.norm_impl == "pallas")
+                continue
             x = nn.Dense(width, dtype=dtype)(x)
             if self.layer_norm:
                 x = nn.LayerNorm(dtype=dtype)(x)
             x = nn.relu(x)
         x = x.astype(jnp.float32)  # the heads in float32: Q-values are compared and regressed
         if not self.dueling:
-            return nn.Dense(self.num_actions)(x)
+            return nn.Dense(self.num_actions, name=f"Dense_{len(self.hidden_sizes)}")(x)
         value = nn.Dense(1, name="value")(x)
         advantage = nn.Dense(self.num_actions, name="advantage")(x)
         # eq. 7: Q = V + (A - mean_a A), which makes V and A identifiable

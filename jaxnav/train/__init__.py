@@ -120,10 +120,19 @@ class Trainer:
             onehot_sizes=self.env.obs_onehot_sizes,
             layer_norm=config.layer_norm,
             compute_dtype=config.compute_dtype,
+            norm_impl=self.norm_impl(config),
         )
         self.obs_size = self.env.observation_space(self.env_params).shape[0]
         self._check_memory()
         self.mesh = sharding.make_mesh(config.num_seeds, config.devices)
+
+    @staticmethod
+    def norm_impl(config: TrainConfig) -> str:
+        """``QNetwork.norm_impl`` for ``config``: the Pallas kernels only where one GPU holds the
+        whole batch (XLA cannot split a kernel's rows over devices)."""
+        if not (config.layer_norm and config.fused_layer_norm):
+            return "flax"
+        return "pallas" if jax.default_backend() == "gpu" and config.devices == 1 else "fused"
 
     @property
     def network_input(self) -> dqn.InputSpec:

@@ -23,7 +23,15 @@ from typing import Any
 import jax
 
 from jaxnav import loggers, run_dir, runner, sharding
-from jaxnav.cli import Parser, UsageError, add_env_args, env_from_args, fail, one_line
+from jaxnav.cli import (
+    Parser,
+    UsageError,
+    add_env_args,
+    env_from_args,
+    fail,
+    one_line,
+    parse_bool,
+)
 from jaxnav.config import MAX_STEPS, TrainConfig
 from jaxnav.presets import train_defaults
 from jaxnav.programs import enable_compilation_cache
@@ -48,6 +56,8 @@ HELP = {
     "algo": "dqn (the paper's: replay and a target network) or pqn (lambda-returns over "
     "rollouts of many envs, no replay)",
     "layer_norm": "LayerNorm before each hidden ReLU (PQN's network)",
+    "fused_layer_norm": "LayerNorm and ReLU as one op with a float32 gradient (Pallas kernels "
+    "on one GPU)",
     "compute_dtype": "float32 or bfloat16 matrix products in the hidden layers",
     "rollout_length": "pqn: env steps of every env per iteration",
     "num_epochs": "pqn: passes over each rollout",
@@ -74,15 +84,6 @@ HELP = {
     "log_interval": "env steps per metrics row and progress line",
     "eval_episodes": "greedy evaluation episodes at the end",
 }
-
-
-def _bool(text: str) -> bool:
-    t = text.lower()
-    if t in ("true", "1", "yes", "on"):
-        return True
-    if t in ("false", "0", "no", "off"):
-        return False
-    raise argparse.ArgumentTypeError(f"invalid boolean {text!r} (use true or false)")
 
 
 def _int_list(text: str) -> tuple[int, ...]:
@@ -133,7 +134,7 @@ def parser() -> argparse.ArgumentParser:
         default = getattr(defaults, f.name)
         flag = "--" + f.name.replace("_", "-")
         if isinstance(default, bool):
-            kind, meta = _bool, "{true,false}"
+            kind, meta = parse_bool, "{true,false}"
         elif isinstance(default, tuple):
             kind, meta, default = _int_list, "W,W,...", ",".join(map(str, default))
         elif f.name == "devices":

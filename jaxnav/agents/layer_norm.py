@@ -1,0 +1,197 @@
+"""LayerNorm then ReLU as one op with a hand-written gradient: a PQN hidden layer's activation.
+
+``layer_norm_relu(z, dense_bias, scale, bias)`` is ``relu(LayerNorm(z + dense_bias) * scale +
+bias)`` over the last axis, where ``z`` is a Dense layer's product before its bias. It computes
+what ``flax.linen.LayerNorm`` followed by ``nn.relu`` does, with the Dense bias folded in, but:
+
+- statistics and the whole backward pass are float32 whatever ``z``'s dtype; only ``z``, the
+  output and ``z``'s gradient are stored in it. flax's LayerNorm in bfloat16 carries its
+  gradient in bfloat16, several times further from float32 math than this op's
+  (``tests/test_layer_norm.py``);
+- the backward pass keeps only ``z`` and two numbers a row (mean, reciprocal deviation), and
+  recomputes the normalized values from them.
+
+Two implementations of that math. ``pallas=True``: Pallas kernels (Triton on a GPU), one pass
+over each block of rows forward (read ``z``, write the output) and one backward (read the
+output's gradient and ``z``, write ``z``'s gradient and each block's column sums of the three
+parameter gradients), where XLA's fusions of the same function read each activation several
+times (``benchmarks/results/profile_training_h100_RobotNav-v0.md``: reductions 44% of the
+GPU's time). On a backend without Triton the kernels run in Pallas's interpreter (tests), and
+shapes they do not take (``kernel_fits``) use the jnp form. ``pallas=False``: jnp, which XLA
+fuses as it can.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+from jax.experimental import pallas as pl
+
+EPSILON = 1e-6  # flax.linen.LayerNorm's default
+# rows per kernel instance and GPU warps, forward and backward (chosen on one H100 for the
+# 1024-512-256 network at 16,384 rows: 8/4 and 16/8 of those tried, 1 to 64 rows)
+FORWARD_BLOCK = (8, 4)
+BACKWARD_BLOCK = (16, 8)
+# widths the kernels take: a whole row is one block, Triton wants powers of two
+KERNEL_WIDTHS = tuple(2**k for k in range(7, 12))  # 128 .. 2048
+
+
+def kernel_fits(rows: int, width: int) -> bool:
+    """Whether the Pallas kernels take ``rows`` x ``width`` (else the jnp form runs)."""
+    block = max(FORWARD_BLOCK[0], BACKWARD_BLOCK[0])
+    return width in KERNEL_WIDTHS and rows > 0 and rows % block == 0
+
+
+def layer_norm_relu(
+    z: jax.Array, dense_bias: jax.Array, scale: jax.Array, bias: jax.Array, pallas: bool = False
+) -> jax.Array:
+    """``relu(LayerNorm(z + dense_bias) * scale + bias)`` over the last axis, in ``z``'s dtype.
+
+    ``dense_bias``, ``scale`` and ``bias`` are [width] (float32 parameters); leading axes of
+    ``z`` are rows. Differentiable in all four (a ``custom_vjp``)."""
+    shape = z.shape
+    rows = z.reshape(-1, shape[-1])
+    kernel = pallas and kernel_fits(*rows.shape)
+    return _layer_norm_relu(kernel, rows, dense_bias, scale, bias).reshape(shape)
+
+
+# ----------------------------------------------------------------------------- the math in jnp
+def _normalize(y: jax.Array, mean: jax.Array, rstd: jax.Array, scale, bias):
+    xhat = (y - mean[:, None]) * rstd[:, None]
+    return xhat, xhat * scale + bias
+
+
+def _forward_jnp(z, dense_bias, scale, bias):
+    y = z.astype(jnp.float32) + dense_bias
+    mean = jnp.mean(y, axis=-1)
+    var = jnp.mean(jnp.square(y - mean[:, None]), axis=-1)
+    rstd = jax.lax.rsqrt(var + EPSILON)
+    _, pre = _normalize(y, mean, rstd, scale, bias)
+    return jnp.maximum(pre, 0.0).astype(z.dtype), mean, rstd
+
+
+def _backward_jnp(grad, z, dense_bias, scale, bias, mean, rstd):
+    xhat, pre = _normalize(z.astype(jnp.float32) + dense_bias, mean, rstd, scale, bias)
+    dpre = jnp.where(pre > 0, grad.astype(jnp.float32), 0.0)
+    u = dpre * scale
+    dz = rstd[:, None] * (
+        u - u.mean(axis=-1, keepdims=True) - xhat * (u * xhat).mean(axis=-1, keepdims=True)
+    )
+    return dz.astype(z.dtype), dz.sum(0), (dpre * xhat).sum(0), dpre.sum(0)
+
+
+# ----------------------------------------------------------------------------- Pallas kernels
+def _forward_kernel(z_ref, dense_bias_ref, scale_ref, bias_ref, out_ref, mean_ref, rstd_ref):
+    y = z_ref[...].astype(jnp.float32) + dense_bias_ref[...][None, :]
+    width = y.shape[-1]
+    mean = jnp.sum(y, axis=1) / width
+    centred = y - mean[:, None]
+    rstd = jax.lax.rsqrt(jnp.sum(centred * centred, axis=1) / width + EPSILON)
+    pre = centred * rstd[:, None] * scale_ref[...][None, :] + bias_ref[...][None, :]
+    out_ref[...] = jnp.maximum(pre, 0.0).astype(out_ref.dtype)
+    mean_ref[...] = mean
+    rstd_ref[...] = rstd
+
+
+def _backward_kernel(
+    grad_ref, z_ref, dense_bias_ref, scale_ref, bias_ref, mean_ref, rstd_ref,
+    dz_ref, dense_bias_part_ref, scale_part_ref, bias_part_ref,
+):  # fmt: skip
+    scale = scale_ref[...][None, :]
+    rstd = rstd_ref[...][:, None]
+    y = z_ref[...].astype(jnp.float32) + dense_bias_ref[...][None, :]
+    xhat = (y - mean_ref[...][:, None]) * rstd
+    pre = xhat * scale + bias_ref[...][None, :]
+    dpre = jnp.where(pre > 0, grad_ref[...].astype(jnp.float32), 0.0)
+    u = dpre * scale
+    width = u.shape[-1]
+    mean_u = jnp.sum(u, axis=1) / width
+    mean_ux = jnp.sum(u * xhat, axis=1) / width
+    dz = rstd * (u - mean_u[:, None] - xhat * mean_ux[:, None])
+    dz_ref[...] = dz.astype(dz_ref.dtype)
+    dense_bias_part_ref[...] = jnp.sum(dz, axis=0)[None, :]
+    scale_part_ref[...] = jnp.sum(dpre * xhat, axis=0)[None, :]
+    bias_part_ref[...] = jnp.sum(dpre, axis=0)[None, :]
+
+
+def _rows_spec(block: int, width: int) -> pl.BlockSpec:
+    return pl.BlockSpec((block, width), lambda i: (i, 0))
+
+
+def _vector_spec(width: int) -> pl.BlockSpec:
+    return pl.BlockSpec((width,), lambda i: (0,))
+
+
+def _per_row_spec(block: int) -> pl.BlockSpec:
+    return pl.BlockSpec((block,), lambda i: (i,))
+
+
+def _call(kernel, block: tuple[int, int], out_shape, in_specs, out_specs, name: str):
+    rows_per_block, warps = block
+    interpret = jax.default_backend() != "gpu"
+    if interpret:
+        params = None
+    else:
+        from jax.experimental.pallas import triton as pl_triton
+
+        params = pl_triton.CompilerParams(num_warps=warps, num_stages=1)
+    return pl.pallas_call(
+        kernel,
+        out_shape=out_shape,
+        grid=(out_shape[0].shape[0] // rows_per_block,),
+        in_specs=in_specs,
+        out_specs=out_specs,
+        interpret=interpret,
+        compiler_params=params,
+        name=name,
+    )
+
+
+def _forward_pallas(z, dense_bias, scale, bias):
+    rows, width = z.shape
+    block = FORWARD_BLOCK[0]
+    per_row = jax.ShapeDtypeStruct((rows,), jnp.float32)
+    return _call(
+        _forward_kernel,
+        FORWARD_BLOCK,
+        (jax.ShapeDtypeStruct(z.shape, z.dtype), per_row, per_row),
+        [_rows_spec(block, width)] + [_vector_spec(width)] * 3,
+        (_rows_spec(block, width), _per_row_spec(block), _per_row_spec(block)),
+        "layer_norm_relu_forward",
+    )(z, dense_bias, scale, bias)
+
+
+def _backward_pallas(grad, z, dense_bias, scale, bias, mean, rstd):
+    rows, width = z.shape
+    block = BACKWARD_BLOCK[0]
+    part = jax.ShapeDtypeStruct((rows // block, width), jnp.float32)
+    part_spec = pl.BlockSpec((1, width), lambda i: (i, 0))
+    dz, *parts = _call(
+        _backward_kernel,
+        BACKWARD_BLOCK,
+        (jax.ShapeDtypeStruct(z.shape, z.dtype), part, part, part),
+        [_rows_spec(block, width)] * 2 + [_vector_spec(width)] * 3 + [_per_row_spec(block)] * 2,
+        (_rows_spec(block, width), part_spec, part_spec, part_spec),
+        "layer_norm_relu_backward",
+    )(grad.astype(z.dtype), z, dense_bias, scale, bias, mean, rstd)
+    return (dz, *(p.sum(0) for p in parts))
+
+
+# ----------------------------------------------------------------------------- custom_vjp
+@functools.partial(jax.custom_vjp, nondiff_argnums=(0,))
+def _layer_norm_relu(kernel: bool, z, dense_bias, scale, bias):
+    return (_forward_pallas if kernel else _forward_jnp)(z, dense_bias, scale, bias)[0]
+
+
+def _layer_norm_relu_fwd(kernel: bool, z, dense_bias, scale, bias):
+    out, mean, rstd = (_forward_pallas if kernel else _forward_jnp)(z, dense_bias, scale, bias)
+    return out, (z, dense_bias, scale, bias, mean, rstd)
+
+
+def _layer_norm_relu_bwd(kernel: bool, residuals, grad):
+    return (_backward_pallas if kernel else _backward_jnp)(grad, *residuals)
+
+
+_layer_norm_relu.defvjp(_layer_norm_relu_fwd, _layer_norm_relu_bwd)

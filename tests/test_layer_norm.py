@@ -1,0 +1,138 @@
+"""The fused LayerNorm + ReLU (jaxnav.agents.layer_norm): flax's function and gradient, in jnp
+and as Pallas kernels (interpreted on this CPU), a float32-accurate gradient in bfloat16, and
+QNetwork's three implementations sharing one parameter tree."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from conftest import TINY_TRAIN
+
+from jaxnav.agents import dqn
+from jaxnav.agents.layer_norm import kernel_fits, layer_norm_relu
+from jaxnav.train import Trainer
+
+ROWS, WIDTH = 32, 128
+
+
+def flax_layer_norm_relu(z, dense_bias, scale, bias):
+    ln = nn.LayerNorm(dtype=z.dtype)
+    return nn.relu(
+        ln.apply({"params": {"scale": scale, "bias": bias}}, z + dense_bias.astype(z.dtype))
+    )
+
+
+def inputs(rows=ROWS, width=WIDTH, dtype=jnp.float32, seed=0):
+    k = jax.random.split(jax.random.key(seed), 5)
+    z = (3.0 * jax.random.normal(k[0], (rows, width)) + 1.0).astype(dtype)
+    dense_bias = 0.1 * jax.random.normal(k[1], (width,))
+    scale = 1.0 + 0.2 * jax.random.normal(k[2], (width,))
+    bias = 0.1 * jax.random.normal(k[3], (width,))
+    cotangent = jax.random.normal(k[4], (rows, width))
+    return (z, dense_bias, scale, bias), cotangent
+
+
+def value_and_grads(fn, args, cotangent):
+    def loss(*a):
+        return (fn(*a).astype(jnp.float32) * cotangent).sum()
+
+    return fn(*args), jax.grad(loss, argnums=(0, 1, 2, 3))(*args)
+
+
+def uses_kernel(fn, args) -> bool:
+    return "pallas_call" in str(jax.make_jaxpr(jax.grad(lambda *a: fn(*a).sum()))(*args))
+
+
+def assert_computes_flax_layer_norm_relu(fn, args, cotangent):
+    out, grads = value_and_grads(fn, args, cotangent)
+    want_out, want_grads = value_and_grads(flax_layer_norm_relu, args, cotangent)
+    np.testing.assert_allclose(out, want_out, atol=2e-6)
+    for got, want in zip(grads, want_grads, strict=True):
+        np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-5 * np.abs(want).max())
+
+
+@pytest.mark.parametrize("pallas", [False, True], ids=["jnp", "pallas"])
+def test_fused_op_is_flax_layer_norm_then_relu_with_its_gradient(pallas):
+    args, cotangent = inputs()
+    fused = lambda *a: layer_norm_relu(*a, pallas=pallas)  # noqa: E731
+    assert kernel_fits(ROWS, WIDTH) and uses_kernel(fused, args) == pallas
+    assert_computes_flax_layer_norm_relu(fused, args, cotangent)
+
+
+def test_bfloat16_gradient_is_float32_accurate():
+    """In bfloat16 the op stores z, its output and z's gradient in bfloat16 but computes in
+    float32: its gradients stay within 1% of float32 math on the same inputs, where flax's
+    LayerNorm in bfloat16 (its gradient carried in bfloat16) is further off."""
+    args, cotangent = inputs(dtype=jnp.bfloat16)
+    exact = value_and_grads(
+        flax_layer_norm_relu, (args[0].astype(jnp.float32), *args[1:]), cotangent
+    )[1]
+
+    def error(fn):
+        grads = value_and_grads(fn, args, cotangent)[1]
+        return max(
+            float(jnp.abs(g.astype(jnp.float32) - e).max() / jnp.abs(e).max())
+            for g, e in zip(grads, exact, strict=True)
+        )
+
+    fused = error(lambda *a: layer_norm_relu(*a, pallas=True))
+    assert fused < 1e-2
+    assert fused == error(layer_norm_relu)  # the kernels compute the jnp form's math
+    assert error(flax_layer_norm_relu) > 5 * fused
+    assert layer_norm_relu(*args).dtype == jnp.bfloat16
+
+
+@pytest.mark.parametrize("rows, width", [(12, 128), (32, 96), (32, 64)])
+def test_shapes_the_kernels_do_not_take_run_the_jnp_form(rows, width):
+    args, cotangent = inputs(rows, width)
+    assert not kernel_fits(rows, width)
+    fused = lambda *a: layer_norm_relu(*a, pallas=True)  # noqa: E731
+    assert not uses_kernel(fused, args)
+    assert_computes_flax_layer_norm_relu(fused, args, cotangent)
+
+
+def test_kernels_under_vmap_over_seeds_compute_each_seed_alone():
+    seeds = [inputs(seed=s) for s in range(3)]
+    stacked = jax.tree.map(lambda *x: jnp.stack(x), *[a for a, _ in seeds])
+    cotangents = jnp.stack([c for _, c in seeds])
+    fused = lambda *a: layer_norm_relu(*a, pallas=True)  # noqa: E731
+    batched = jax.vmap(lambda a, c: value_and_grads(fused, a, c))(stacked, cotangents)
+    for s, (args, cotangent) in enumerate(seeds):
+        alone = value_and_grads(fused, args, cotangent)
+        for b, a in zip(jax.tree.leaves(batched), jax.tree.leaves(alone), strict=True):
+            np.testing.assert_allclose(b[s], a, rtol=1e-6, atol=1e-6)
+
+
+@pytest.mark.parametrize("dueling", [True, False], ids=["dueling", "plain"])
+def test_network_implementations_share_parameters_and_compute_alike(dueling):
+    """Checkpoints and exports read one parameter tree whichever implementation trained it."""
+    obs = jax.random.normal(jax.random.key(1), (ROWS, 11))
+    nets = {
+        impl: dqn.QNetwork(
+            4, hidden_sizes=(WIDTH, 64), dueling=dueling, layer_norm=True, norm_impl=impl
+        )
+        for impl in dqn.NORM_IMPLS
+    }
+    params = {impl: net.init(jax.random.key(0), obs) for impl, net in nets.items()}
+    for p in params.values():
+        jax.tree.map(np.testing.assert_array_equal, p, params["flax"])
+    q = {impl: net.apply(params["flax"], obs) for impl, net in nets.items()}
+    for impl in ("fused", "pallas"):
+        np.testing.assert_allclose(q[impl], q["flax"], rtol=1e-5, atol=1e-5)
+    with pytest.raises(ValueError, match="norm_impl='triton'"):
+        dqn.QNetwork(4, layer_norm=True, norm_impl="triton").init(jax.random.key(0), obs)
+
+
+def test_trainer_fuses_only_when_asked_and_uses_kernels_only_on_one_gpu():
+    pqn = dataclasses.replace(TINY_TRAIN, algo="pqn", layer_norm=True)
+    assert Trainer.norm_impl(pqn) == "flax"
+    fused = dataclasses.replace(pqn, fused_layer_norm=True)
+    assert Trainer.norm_impl(fused) == ("pallas" if jax.default_backend() == "gpu" else "fused")
+    assert Trainer.norm_impl(dataclasses.replace(fused, devices=2)) == "fused"
+    # the flag says how a LayerNorm is computed; without one there is nothing to fuse
+    assert Trainer.norm_impl(dataclasses.replace(fused, layer_norm=False)) == "flax"
