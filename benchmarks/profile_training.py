@@ -10,8 +10,8 @@ the trace is put in one kind by its name (``KINDS``: the Pallas LayerNorm kernel
 products, reductions, dtype conversions, sorts, gathers and scatters, copies, the rest) and its
 time summed. Reported: the span from the first kernel's start to the last one's end, the
 kernels' total time (so the fraction of the span the device was busy), each kind's time and
-share, and the kernels that took longest. Needs an accelerator: a CPU run's trace has no device kernels and the script
-says so in one line (exit 2).
+share, and the kernels that took longest. Needs an accelerator: a CPU run's trace has no
+device kernels and the script says so in one line (exit 2).
 """
 
 from __future__ import annotations
