@@ -15,10 +15,10 @@ Two implementations of that math. ``pallas=True``: Pallas kernels (Triton on a G
 over each block of rows forward (read ``z``, write the output) and one backward (read the
 output's gradient and ``z``, write ``z``'s gradient and each block's column sums of the three
 parameter gradients), where XLA's fusions of the same function read each activation several
-times (``benchmarks/results/profile_training_h100_RobotNav-v0.md``: reductions 44% of the
-GPU's time). On a backend without Triton the kernels run in Pallas's interpreter (tests), and
-shapes they do not take (``kernel_fits``) use the jnp form. ``pallas=False``: jnp, which XLA
-fuses as it can.
+times (with flax's LayerNorm, reductions took 44% of the GPU's kernel time:
+``benchmarks/results/archive/profile_training_h100_RobotNav-v0_flax_norm.md``). On a backend
+without Triton the kernels run in Pallas's interpreter (tests), and shapes they do not take
+(``kernel_fits``) use the jnp form. ``pallas=False``: jnp, which XLA fuses as it can.
 """
 
 from __future__ import annotations
