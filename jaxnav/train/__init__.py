@@ -128,11 +128,15 @@ class Trainer:
 
     @staticmethod
     def norm_impl(config: TrainConfig) -> str:
-        """``QNetwork.norm_impl`` for ``config``: the Pallas kernels only where one GPU holds the
-        whole batch (XLA cannot split a kernel's rows over devices)."""
+        """``QNetwork.norm_impl`` for ``config``: with ``fused_layer_norm``, the Pallas kernels
+        where one GPU holds the whole batch; on a CPU the jnp form (the kernels' math, a little
+        faster than flax's there); across several GPUs, which XLA cannot split a kernel's rows
+        over, flax's LayerNorm (the jnp form is slower than flax's on a GPU)."""
         if not (config.layer_norm and config.fused_layer_norm):
             return "flax"
-        return "pallas" if jax.default_backend() == "gpu" and config.devices == 1 else "fused"
+        if jax.default_backend() != "gpu":
+            return "fused"
+        return "pallas" if config.devices == 1 else "flax"
 
     @property
     def network_input(self) -> dqn.InputSpec:
