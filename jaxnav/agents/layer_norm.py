@@ -57,63 +57,62 @@ def layer_norm_relu(
     return _layer_norm_relu(kernel, rows, dense_bias, scale, bias).reshape(shape)
 
 
-# ----------------------------------------------------------------------------- the math in jnp
+# ----------------------------------------------------------------------------- the math
+# One forward and one backward for both forms: the jnp form calls them on all rows, the Pallas
+# kernels on each block of rows they load, so the two compute the same function.
 def _normalize(y: jax.Array, mean: jax.Array, rstd: jax.Array, scale, bias):
     xhat = (y - mean[:, None]) * rstd[:, None]
     return xhat, xhat * scale + bias
 
 
-def _forward_jnp(z, dense_bias, scale, bias):
+def _forward_math(z, dense_bias, scale, bias):
+    """Rows of ``z`` -> (the float32 output, each row's mean and reciprocal deviation)."""
     y = z.astype(jnp.float32) + dense_bias
     mean = jnp.mean(y, axis=-1)
-    var = jnp.mean(jnp.square(y - mean[:, None]), axis=-1)
-    rstd = jax.lax.rsqrt(var + EPSILON)
+    rstd = jax.lax.rsqrt(jnp.mean(jnp.square(y - mean[:, None]), axis=-1) + EPSILON)
     _, pre = _normalize(y, mean, rstd, scale, bias)
-    return jnp.maximum(pre, 0.0).astype(z.dtype), mean, rstd
+    return jnp.maximum(pre, 0.0), mean, rstd
 
 
-def _backward_jnp(grad, z, dense_bias, scale, bias, mean, rstd):
+def _backward_math(grad, z, dense_bias, scale, bias, mean, rstd):
+    """``z``'s gradient (float32) and, per row, the gradients of the Dense bias, the scale and
+    the bias, which the caller sums over rows."""
     xhat, pre = _normalize(z.astype(jnp.float32) + dense_bias, mean, rstd, scale, bias)
     dpre = jnp.where(pre > 0, grad.astype(jnp.float32), 0.0)
     u = dpre * scale
     dz = rstd[:, None] * (
         u - u.mean(axis=-1, keepdims=True) - xhat * (u * xhat).mean(axis=-1, keepdims=True)
     )
-    return dz.astype(z.dtype), dz.sum(0), (dpre * xhat).sum(0), dpre.sum(0)
+    return dz, (dz, dpre * xhat, dpre)
+
+
+def _forward_jnp(z, dense_bias, scale, bias):
+    out, mean, rstd = _forward_math(z, dense_bias, scale, bias)
+    return out.astype(z.dtype), mean, rstd
+
+
+def _backward_jnp(grad, z, dense_bias, scale, bias, mean, rstd):
+    dz, per_row = _backward_math(grad, z, dense_bias, scale, bias, mean, rstd)
+    return (dz.astype(z.dtype), *(g.sum(0) for g in per_row))
 
 
 # ----------------------------------------------------------------------------- Pallas kernels
 def _forward_kernel(z_ref, dense_bias_ref, scale_ref, bias_ref, out_ref, mean_ref, rstd_ref):
-    y = z_ref[...].astype(jnp.float32) + dense_bias_ref[...][None, :]
-    width = y.shape[-1]
-    mean = jnp.sum(y, axis=1) / width
-    centred = y - mean[:, None]
-    rstd = jax.lax.rsqrt(jnp.sum(centred * centred, axis=1) / width + EPSILON)
-    pre = centred * rstd[:, None] * scale_ref[...][None, :] + bias_ref[...][None, :]
-    out_ref[...] = jnp.maximum(pre, 0.0).astype(out_ref.dtype)
+    out, mean, rstd = _forward_math(z_ref[...], dense_bias_ref[...], scale_ref[...], bias_ref[...])
+    out_ref[...] = out.astype(out_ref.dtype)
     mean_ref[...] = mean
     rstd_ref[...] = rstd
 
 
 def _backward_kernel(
-    grad_ref, z_ref, dense_bias_ref, scale_ref, bias_ref, mean_ref, rstd_ref,
-    dz_ref, dense_bias_part_ref, scale_part_ref, bias_part_ref,
-):  # fmt: skip
-    scale = scale_ref[...][None, :]
-    rstd = rstd_ref[...][:, None]
-    y = z_ref[...].astype(jnp.float32) + dense_bias_ref[...][None, :]
-    xhat = (y - mean_ref[...][:, None]) * rstd
-    pre = xhat * scale + bias_ref[...][None, :]
-    dpre = jnp.where(pre > 0, grad_ref[...].astype(jnp.float32), 0.0)
-    u = dpre * scale
-    width = u.shape[-1]
-    mean_u = jnp.sum(u, axis=1) / width
-    mean_ux = jnp.sum(u * xhat, axis=1) / width
-    dz = rstd * (u - mean_u[:, None] - xhat * mean_ux[:, None])
+    grad_ref, z_ref, dense_bias_ref, scale_ref, bias_ref, mean_ref, rstd_ref, dz_ref, *part_refs
+):
+    """``part_refs``: this block's column sums of the three parameter gradients."""
+    inputs = (grad_ref, z_ref, dense_bias_ref, scale_ref, bias_ref, mean_ref, rstd_ref)
+    dz, per_row = _backward_math(*(ref[...] for ref in inputs))
     dz_ref[...] = dz.astype(dz_ref.dtype)
-    dense_bias_part_ref[...] = jnp.sum(dz, axis=0)[None, :]
-    scale_part_ref[...] = jnp.sum(dpre * xhat, axis=0)[None, :]
-    bias_part_ref[...] = jnp.sum(dpre, axis=0)[None, :]
+    for ref, g in zip(part_refs, per_row, strict=True):
+        ref[...] = jnp.sum(g, axis=0)[None, :]
 
 
 def _rows_spec(block: int, width: int) -> pl.BlockSpec:
