@@ -125,7 +125,7 @@ def markdown(result: dict[str, Any]) -> str:
         seeds = ", ".join(f"{s:.3f}" for s in r["success_per_seed"])
         lines.append(
             f"| {r['variant']} | {r['num_envs']} | {r['replay_ratio']:g} | "
-            f"{r.get('batch_size', BATCH)} | {r['updates_per_iteration']} | "
+            f"{r['batch_size']} | {r['updates_per_iteration']} | "
             f"{r['gradient_steps_per_seed']:,} | {r['success_mean']:.3f} ({seeds}) | "
             f"{r['train_s']:.1f} | {steps_per_s(result, r)} | {r['compile_s']:.1f} | "
             f"{r['loadavg_1m_before']:.1f} |"

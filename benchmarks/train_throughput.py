@@ -359,7 +359,7 @@ def markdown(result: dict[str, Any]) -> str:
     m = result["machine"]
     norm = "no LayerNorm"
     if first["layer_norm"]:
-        norm = "fused LayerNorm" if first.get("fused_layer_norm") else "flax's LayerNorm"
+        norm = "fused LayerNorm" if first["fused_layer_norm"] else "flax's LayerNorm"
     head = (
         f"{result['env']}{kwargs}, network {'-'.join(map(str, first['hidden_sizes']))} "
         f"{first['compute_dtype']} with {norm}, {result['iterations']} iterations per timed "
