@@ -172,7 +172,7 @@ def test_second_cli_run_is_served_from_the_compilation_cache(tmp_path: Path) -> 
     first, second = row["first_run"], row["second_run"]
     assert first["phases"]["cache_hits"] == 0  # an empty cache
     assert second["phases"]["cache_hits"] >= 1, second  # at least the training interval
-    assert second["compile_s"] < 0.5 * first["compile_s"], (first, second)
+    assert second["compile_s"] < first["compile_s"], (first, second)  # loads, not compiles
     for run in (first, second):
         assert 0 < run["first_step_s"] <= run["total_s"]
         assert run["phases"]["trace_s"] > 0 and run["phases"]["compile_or_load_s"] > 0

@@ -71,8 +71,9 @@ def test_train_throughput_smoke(tmp_path: Path) -> None:
             (r["serial_bound_steps_per_s"], "fraction_of_serial"),
         ):
             assert r[key] == pytest.approx(train["env_steps_per_s"] / bound), key
-        # the bounds bound training, up to timing noise on a shared machine
-        assert 0 < r["fraction_of_env_alone"] <= 1.5 and 0 < r["fraction_of_update"] <= 1.5
+        # whether the bounds bound training is a measurement (benchmarks/results), not a
+        # behaviour: on a loaded 2-core machine a 4-iteration bare update can time 2x slow
+        assert r["fraction_of_env_alone"] > 0 and r["fraction_of_update"] > 0
     md = out.with_suffix(".md").read_text()
     assert md.startswith("GridMaze-v0 size=5, network 16 float32") and "| pqn | 8 | 8 |" in md
     assert out.with_suffix(".png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
