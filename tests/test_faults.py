@@ -356,22 +356,32 @@ def special_files(tmp_path: Path) -> dict[str, Path]:
     return made
 
 
+def nodes(root: Path) -> list[tuple]:
+    """Each path under ``root`` with what replacing or writing it would change: its kind,
+    inode, size and modification times (not the access time, which reading a link sets)."""
+    return [
+        (p, s.st_mode, s.st_ino, s.st_size, s.st_mtime_ns, s.st_ctime_ns)
+        for p in tree(root)
+        for s in [p.lstat()]
+    ]
+
+
 def test_evaluate_and_render_refuse_outputs_that_are_not_regular_files(trained, tmp_path, capsys):
     from jaxnav.evaluate.__main__ import main as evaluate_main
     from jaxnav.render import main as render_main
 
     for kind, path in special_files(tmp_path).items():
-        before = [(p, p.lstat()) for p in tree(tmp_path)]
+        before = nodes(tmp_path)
         for command, ext in ((evaluate_main, ".json"), (render_main, ".png")):
             target = path.with_name(path.stem + ext) if ext != ".json" else path
             if ext != ".json" and not os.path.lexists(target):
                 os.rename(path, target)  # the same kind of node, named .png
-                before = [(p, p.lstat()) for p in tree(tmp_path)]
+                before = nodes(tmp_path)
             err = one_line_error(
                 capsys, 2, command([str(trained), "--out", str(target), "--episodes", "1"])
             )
             assert f"--out {target}" in err, (kind, err)
-            assert [(p, p.lstat()) for p in tree(tmp_path)] == before, kind  # nothing replaced
+            assert nodes(tmp_path) == before, kind  # nothing replaced
     assert not list(trained.glob("*.tmp")) and not list(tmp_path.glob(".*partial*"))
 
 
