@@ -160,3 +160,31 @@ def test_profile_training_sums_device_kernels_by_kind(tmp_path: Path, capsys) ->
     err = capsys.readouterr().err.strip()
     assert exit_info.value.code == 2 and err.count("\n") == 0 and "accelerator" in err, err
     assert not out.exists()
+
+
+def test_layer_norm_blocks_times_each_block_against_the_jnp_form() -> None:
+    from benchmarks import layer_norm_blocks as lnb
+    from jaxnav.agents import layer_norm
+
+    before = dict(layer_norm.BACKWARD_BLOCKS)
+    chosen = layer_norm.BACKWARD_BLOCKS[128]
+    rows = lnb.measure(32, 128, [(8, 4), (32, 4), (64, 4)], chain=2)  # 64 rows: does not fit
+    assert layer_norm.BACKWARD_BLOCKS == before  # the table is restored
+    backward = [r for r in rows if r["direction"] == "backward"]
+    assert [r["form"] for r in backward] == ["jnp (XLA)", "8 rows, 4 warps", "32 rows, 4 warps"]
+    assert [r["chosen"] for r in backward] == [False, (8, 4) == chosen, (32, 4) == chosen]
+    assert backward[0]["jnp_over_this"] == 1.0
+    assert all(r["us_per_call"] > 0 and r["compile_s"] > 0 for r in rows)
+    assert "| backward | 128 | **32 rows, 4 warps** |" in lnb.markdown(
+        {"machine": {"devices": ["cpu"], "jax_version": "x", "date": "2026-11-24"},
+         "command": "c", "rows": 32, "chain": 2, "measurements": rows}
+    )  # fmt: skip
+
+
+def test_layer_norm_blocks_refuses_a_width_the_kernels_do_not_take(capsys) -> None:
+    from benchmarks import layer_norm_blocks as lnb
+
+    with pytest.raises(SystemExit) as exit_info:
+        lnb.main(["--widths", "100"])
+    assert exit_info.value.code == 2
+    assert "--widths 100: the kernels take 128, 256" in capsys.readouterr().err

@@ -122,8 +122,19 @@ def test_network_implementations_share_parameters_and_compute_alike(dueling):
     for p in params.values():
         jax.tree.map(np.testing.assert_array_equal, p, params["flax"])
     q = {impl: net.apply(params["flax"], obs) for impl, net in nets.items()}
+    cotangent = jax.random.normal(jax.random.key(2), q["flax"].shape)
+    grads = {
+        impl: jax.grad(lambda p, net=net: (net.apply(p, obs) * cotangent).sum())(params["flax"])
+        for impl, net in nets.items()
+    }
     for impl in ("fused", "pallas"):
         np.testing.assert_allclose(q[impl], q["flax"], rtol=1e-5, atol=1e-5)
+        # every parameter, the value and advantage heads' among them, learns alike
+        jax.tree.map(
+            lambda a, b: np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5),
+            grads[impl],
+            grads["flax"],
+        )
     with pytest.raises(ValueError, match="norm_impl='triton'"):
         dqn.QNetwork(4, layer_norm=True, norm_impl="triton").init(jax.random.key(0), obs)
 

@@ -30,20 +30,29 @@ import jax.numpy as jnp
 from jax.experimental import pallas as pl
 
 EPSILON = 1e-6  # flax.linen.LayerNorm's default
-# rows per kernel instance and GPU warps, forward and backward (chosen on one H100 for the
-# 1024-512-256 network at 16,384 rows: 8/4 and 16/8 of those tried, 1 to 64 rows; a backward
-# instance walking 2 to 16 such blocks, for fewer partial sums, trained 1.5% faster at 2 and
-# slower beyond, not worth a loop)
-FORWARD_BLOCK = (8, 4)
-BACKWARD_BLOCK = (16, 8)
 # widths the kernels take: a whole row is one block, Triton wants powers of two
 KERNEL_WIDTHS = tuple(2**k for k in range(7, 12))  # 128 .. 2048
+# (rows, GPU warps) of one kernel instance, by row width, forward and backward. Measured on one
+# H100 at 16,384 rows (.. 4 to 32 rows, 2 to 16 warps; ``benchmarks/layer_norm_blocks.py``):
+# 8 rows and 4 warps forward at every width; backward 8 rows at 512 and 1024 (16 spilled at
+# 1024: 103 us against 88) and 32 at 256. 128 and 2048 follow the pattern, unmeasured. A
+# backward instance walking 2 to 16 blocks, for fewer partial sums, was slower beyond 2.
+FORWARD_BLOCKS: dict[int, tuple[int, int]] = dict.fromkeys(KERNEL_WIDTHS, (8, 4))
+BACKWARD_BLOCKS: dict[int, tuple[int, int]] = {
+    128: (32, 4),
+    256: (32, 4),
+    512: (8, 4),
+    1024: (8, 4),
+    2048: (4, 4),
+}
 
 
 def kernel_fits(rows: int, width: int) -> bool:
     """Whether the Pallas kernels take ``rows`` x ``width`` (else the jnp form runs)."""
-    block = max(FORWARD_BLOCK[0], BACKWARD_BLOCK[0])
-    return width in KERNEL_WIDTHS and rows > 0 and rows % block == 0
+    if width not in KERNEL_WIDTHS:
+        return False
+    block = max(FORWARD_BLOCKS[width][0], BACKWARD_BLOCKS[width][0])
+    return rows > 0 and rows % block == 0
 
 
 def layer_norm_relu(
@@ -107,14 +116,15 @@ def _forward_kernel(z_ref, dense_bias_ref, scale_ref, bias_ref, out_ref, mean_re
 
 
 def _backward_kernel(
-    grad_ref, z_ref, dense_bias_ref, scale_ref, bias_ref, mean_ref, rstd_ref, dz_ref, *part_refs
+    grad_ref, z_ref, dense_bias_ref, scale_ref, bias_ref, mean_ref, rstd_ref, dz_ref, sums_ref
 ):
-    """``part_refs``: this block's column sums of the three parameter gradients."""
+    """``sums_ref``: 4 rows, this block's column sums of the three parameter gradients (the
+    4th row, there for Triton's power-of-two blocks, is not written)."""
     inputs = (grad_ref, z_ref, dense_bias_ref, scale_ref, bias_ref, mean_ref, rstd_ref)
     dz, per_row = _backward_math(*(ref[...] for ref in inputs))
     dz_ref[...] = dz.astype(dz_ref.dtype)
-    for ref, g in zip(part_refs, per_row, strict=True):
-        ref[...] = jnp.sum(g, axis=0)[None, :]
+    for i, g in enumerate(per_row):
+        sums_ref[pl.ds(i, 1), :] = jnp.sum(g, axis=0)[None, :]
 
 
 def _rows_spec(block: int, width: int) -> pl.BlockSpec:
@@ -152,11 +162,11 @@ def _call(kernel, block: tuple[int, int], out_shape, in_specs, out_specs, name: 
 
 def _forward_pallas(z, dense_bias, scale, bias):
     rows, width = z.shape
-    block = FORWARD_BLOCK[0]
+    block = FORWARD_BLOCKS[width][0]
     per_row = jax.ShapeDtypeStruct((rows,), jnp.float32)
     return _call(
         _forward_kernel,
-        FORWARD_BLOCK,
+        FORWARD_BLOCKS[width],
         (jax.ShapeDtypeStruct(z.shape, z.dtype), per_row, per_row),
         [_rows_spec(block, width)] + [_vector_spec(width)] * 3,
         (_rows_spec(block, width), _per_row_spec(block), _per_row_spec(block)),
@@ -166,18 +176,22 @@ def _forward_pallas(z, dense_bias, scale, bias):
 
 def _backward_pallas(grad, z, dense_bias, scale, bias, mean, rstd):
     rows, width = z.shape
-    block = BACKWARD_BLOCK[0]
-    part = jax.ShapeDtypeStruct((rows // block, width), jnp.float32)
-    part_spec = pl.BlockSpec((1, width), lambda i: (i, 0))
-    dz, *parts = _call(
+    block = BACKWARD_BLOCKS[width][0]
+    blocks = rows // block
+    dz, sums = _call(
         _backward_kernel,
-        BACKWARD_BLOCK,
-        (jax.ShapeDtypeStruct(z.shape, z.dtype), part, part, part),
+        BACKWARD_BLOCKS[width],
+        (
+            jax.ShapeDtypeStruct(z.shape, z.dtype),
+            jax.ShapeDtypeStruct((blocks * 4, width), jnp.float32),
+        ),
         [_rows_spec(block, width)] * 2 + [_vector_spec(width)] * 3 + [_per_row_spec(block)] * 2,
-        (_rows_spec(block, width), part_spec, part_spec, part_spec),
+        (_rows_spec(block, width), _rows_spec(4, width)),
         "layer_norm_relu_backward",
     )(grad.astype(z.dtype), z, dense_bias, scale, bias, mean, rstd)
-    return (dz, *(p.sum(0) for p in parts))
+    # one reduction over all blocks for the three sums (three took 3x the launches)
+    total = sums.reshape(blocks, 4, width)[:, :3].sum(0)
+    return (dz, total[0], total[1], total[2])
 
 
 # ----------------------------------------------------------------------------- custom_vjp
