@@ -32,11 +32,14 @@ from jax.experimental import pallas as pl
 EPSILON = 1e-6  # flax.linen.LayerNorm's default
 # widths the kernels take: a whole row is one block, Triton wants powers of two
 KERNEL_WIDTHS = tuple(2**k for k in range(7, 12))  # 128 .. 2048
-# (rows, GPU warps) of one kernel instance, by row width, forward and backward. Measured on one
-# H100 at 16,384 rows (.. 4 to 32 rows, 2 to 16 warps; ``benchmarks/layer_norm_blocks.py``):
-# 8 rows and 4 warps forward at every width; backward 8 rows at 512 and 1024 (16 spilled at
-# 1024: 103 us against 88) and 32 at 256. 128 and 2048 follow the pattern, unmeasured. A
-# backward instance walking 2 to 16 blocks, for fewer partial sums, was slower beyond 2.
+# (rows, GPU warps) of one kernel instance, by row width, forward and backward, chosen on one
+# H100 at 16,384 rows from each kernel timed alone, then the 1024-512-256 preset trained with a
+# few (1024 backward at 8x4, 8x8 and 16x16, larger blocks at 256 and 512, smaller forward ones:
+# all within 1%). At 1024 the backward's 16-row blocks spill: 80 us a call with 8 rows x 4
+# warps, 85 with 16 x 8, 178 with 16 x 4 (``benchmarks/results/layer_norm_blocks_h100.md``).
+# That table ranks two others first (forward at 256: 16 x 8; backward at 512: 16 x 4), not
+# tried in training. 128 and 2048 follow the pattern, unmeasured. A backward instance walking
+# 2 to 16 blocks was slower beyond 2.
 FORWARD_BLOCKS: dict[int, tuple[int, int]] = dict.fromkeys(KERNEL_WIDTHS, (8, 4))
 BACKWARD_BLOCKS: dict[int, tuple[int, int]] = {
     128: (32, 4),
