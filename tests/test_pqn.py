@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 
 from jaxnav.agents import dqn, pqn
 from jaxnav.config import TrainConfig
-from jaxnav.train import Trainer
+from jaxnav.train import Trainer, Transitions
 from jaxnav.train.__main__ import main as train_main
 
 # TINY_TRAIN as PQN: 4 envs x 2 steps per rollout, 2 minibatches of 4 transitions, 2 epochs
@@ -141,6 +141,78 @@ def test_lambda_returns_match_the_reference_on_random_rollouts(steps, envs, gamm
     got = returns_of(reward, terminated, done, next_value, gamma, lam)
     want = reference_lambda_returns(reward, terminated, done, next_value, gamma, lam)
     np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-5)
+
+
+# ------------------------------------------------------------------ bootstrap values
+NEXT_STEPS, NEXT_ENVS = 6, 4
+
+
+@pytest.fixture(scope="module")
+def next_values_of(pqn_trainer):
+    """``(done, terminated) -> (next_values, one forward pass over next_obs, the acting
+    pass's values of the following steps)``
+    on a hand-made rollout of NEXT_STEPS x NEXT_ENVS: observations from env resets; after a
+    step that ends an episode, next_obs is another (final) observation than the next step's."""
+    trainer = pqn_trainer
+    steps, envs = NEXT_STEPS, NEXT_ENVS
+    q_max = lambda params, obs: trainer.network.apply(params, obs).max(axis=-1)  # noqa: E731
+
+    @jax.jit
+    def run(params, done, terminated):
+        keys = jax.random.split(jax.random.key(7), (2 * steps + 1) * envs)
+        pool, _ = jax.vmap(trainer.env.reset, in_axes=(0, None))(keys, trainer.env_params)
+        obs = pool[: steps * envs].reshape(steps, envs, -1)
+        last_obs = pool[steps * envs : (steps + 1) * envs]
+        final = pool[(steps + 1) * envs :].reshape(steps, envs, -1)
+        following = jnp.concatenate([obs[1:], last_obs[None]])
+        next_obs = jnp.where(done[..., None], final, following)
+        zeros = jnp.zeros((steps, envs))
+        tr = Transitions(
+            obs, zeros.astype(jnp.int32), zeros, next_obs, terminated, done, q_max(params, obs)
+        )
+        acted = q_max(params, following)
+        return trainer.next_values(params, tr, last_obs), q_max(params, next_obs), acted
+
+    params = jax.jit(trainer.init)(jax.random.key(0)).params
+    return lambda done, terminated: run(params, jnp.asarray(done), jnp.asarray(terminated))
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    cut_step=st.lists(st.integers(-1, NEXT_STEPS - 1), min_size=NEXT_ENVS, max_size=NEXT_ENVS),
+    ends=st.lists(st.booleans(), min_size=NEXT_STEPS * NEXT_ENVS, max_size=NEXT_STEPS * NEXT_ENVS),
+    cut_every_step=st.booleans(),
+)
+def test_next_values_are_one_pass_over_next_observations(
+    next_values_of, pqn_trainer, cut_step, ends, cut_every_step
+):
+    """PQN's bootstrap values, taken from the acting passes and a pass over the final
+    observations of time-limit cuts, equal one forward pass over every next observation
+    wherever a target bootstraps: each env cut at most once (one row an env) or,
+    ``cut_every_step``, env 0 cut every step (more than a time limit allows)."""
+    assert pqn_trainer.env_params.max_steps_in_episode >= NEXT_STEPS  # one cut an env fits
+    done = np.array(ends).reshape(NEXT_STEPS, NEXT_ENVS)
+    terminated = done.copy()
+    for env, step in enumerate(cut_step):
+        if step >= 0:
+            done[step, env], terminated[step, env] = True, False
+    if cut_every_step:
+        done[:, 0], terminated[:, 0] = True, False
+    values, one_pass, _ = jax.device_get(next_values_of(done, terminated))
+    boots = ~terminated
+    np.testing.assert_allclose(values[boots], one_pass[boots], rtol=1e-5, atol=1e-5)
+
+
+def test_next_values_read_final_observations_where_the_time_limit_cut(next_values_of):
+    """At a cut step the value is the final observation's, not the next step's (the reset's):
+    the case a bootstrap from the acting pass alone would get wrong."""
+    done = np.zeros((NEXT_STEPS, NEXT_ENVS), bool)
+    done[2, 1] = done[0, 3] = True
+    values, one_pass, acted = jax.device_get(next_values_of(done, np.zeros_like(done)))
+    np.testing.assert_allclose(values, one_pass, rtol=1e-5, atol=1e-5)
+    cut = done
+    assert not np.allclose(one_pass[cut], acted[cut])  # the two differ there
+    np.testing.assert_allclose(values[~cut], acted[~cut], rtol=1e-5, atol=1e-5)  # acting pass
 
 
 # ------------------------------------------------------------------ tiny runs

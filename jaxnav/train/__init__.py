@@ -87,6 +87,7 @@ class Transitions:
     next_obs: jax.Array  # the final observation where the episode ended
     terminated: jax.Array
     done: jax.Array
+    value: jax.Array  # max_a Q(obs, a) of the acting pass
 
 
 @struct.dataclass
@@ -104,6 +105,22 @@ class TrainState:
     # divergence guard: set once, at the first iteration where a watched quantity is NaN/Inf
     diverged: jax.Array  # int32, see DIVERGENCE_QUANTITIES
     diverged_at: jax.Array  # int32, env steps when it was seen (0 if not diverged)
+
+
+# XLA options the training programs compile with on a GPU (``compiler_options()``): loops
+# double-buffered (XLA unrolls each by two and alternates their buffers, which drops copies of
+# loop state between iterations); the RobotNav-v0 PQN preset's iteration on one H100 went from
+# 38.9 to 38.3 ms (rejax's PQN on the same env, compiled with it: 35.8 s -> 35.9 s for 105M steps)
+GPU_COMPILER_OPTIONS: dict[str, Any] = {"xla_gpu_enable_while_loop_double_buffering": True}
+# A GPU runs the rollout's scan unrolled by two: the env's many small kernels of two steps
+# are scheduled together (with double buffering, 38.3 -> 37.5 ms an iteration, as above)
+GPU_ROLLOUT_UNROLL = 2
+
+
+def compiler_options() -> dict[str, Any]:
+    """Options for ``jit(...).lower(...).compile(options)`` of training programs on the
+    default backend: ``GPU_COMPILER_OPTIONS`` on a GPU, none elsewhere."""
+    return dict(GPU_COMPILER_OPTIONS) if jax.default_backend() == "gpu" else {}
 
 
 class Trainer:
@@ -304,7 +321,7 @@ class Trainer:
         )(jax.random.split(k_step, c.num_envs), ts.env_state, action, self.env_params)
         done = terminated | truncated
         transitions = Transitions(
-            ts.obs, action, reward, info["final_observation"], terminated, done
+            ts.obs, action, reward, info["final_observation"], terminated, done, q.max(axis=-1)
         )
         ep_return = ts.episode_return + reward
         ep_length = ts.episode_length + 1
@@ -377,13 +394,40 @@ class Trainer:
         ts, aux = jax.lax.cond(learning, updates, no_updates, ts)
         return ts, aux
 
+    def next_values(self, params: Any, tr: Transitions, last_obs: jax.Array) -> jax.Array:
+        """``max_a Q(s', a)`` for every step of rollout ``tr`` [T, N], the observation after
+        the step (``last_obs`` after the last one; the final observation where an episode
+        ended), as one forward pass over ``tr.next_obs`` would give them.
+
+        The acting pass of step t + 1 already valued the observation after step t unless the
+        episode ended there (it then acted on the reset's observation): values are taken from
+        it, and only ``last_obs`` and the final observations of episodes cut by the time
+        limit go through the network again (terminated ones do not bootstrap). The time
+        limit cuts an env at most once in ``max_steps_in_episode`` steps, so, in a rollout
+        no longer than that, at most once: one pass over one row an env. Longer rollouts (or
+        an env cut twice) take one pass over every next observation."""
+        num_steps = tr.reward.shape[0]
+        q_max = lambda obs: self.network.apply(params, obs).max(axis=-1)  # noqa: E731
+        if num_steps > int(self.env_params.max_steps_in_episode):
+            return q_max(tr.next_obs)
+        cut = tr.done & ~tr.terminated
+
+        def once(_) -> jax.Array:
+            step = jnp.argmax(cut, axis=0)  # each env's cut step, 0 if none
+            final = q_max(tr.next_obs[step, jnp.arange(cut.shape[1])])
+            following = jnp.concatenate([tr.value[1:], q_max(last_obs)[None]])
+            return jnp.where(cut, final, following)
+
+        every = lambda _: q_max(tr.next_obs)  # noqa: E731
+        return jax.lax.cond((cut.sum(axis=0) <= 1).all(), once, every, None)
+
     def _pqn_learn(
         self, ts: TrainState, tr: Transitions, key: jax.Array
     ) -> tuple[TrainState, dict]:
         """Lambda-returns of the rollout from the current network, then ``num_epochs``
         shuffled passes of ``num_minibatches`` gradient steps over it."""
         c, hp = self.config, ts.hparams
-        next_value = self.network.apply(ts.params, tr.next_obs).max(axis=-1)
+        next_value = self.next_values(ts.params, tr, ts.obs)
         targets = pqn.lambda_returns(
             tr.reward, tr.terminated, tr.done, next_value, hp.gamma, hp.td_lambda
         )
@@ -396,12 +440,15 @@ class Trainer:
         loss_fn = self.minibatch_loss(ts)
 
         def epoch(ts, k):
-            order = jax.random.permutation(k, n)
-            minibatches = jax.tree.map(
-                lambda x: x[order].reshape(c.num_minibatches, -1, *x.shape[1:]), data
-            )
+            # each step gathers its rows, so the gather fuses with the network's input
+            # conversion (a shuffled copy of the rollout was one more pass over it per epoch)
+            order = jax.random.permutation(k, n).reshape(c.num_minibatches, -1)
             return jax.lax.scan(
-                lambda ts, batch: self.gradient_step(ts, batch, loss_fn), ts, minibatches
+                lambda ts, rows: self.gradient_step(
+                    ts, jax.tree.map(lambda x: x[rows], data), loss_fn
+                ),
+                ts,
+                order,
             )
 
         ts, aux = jax.lax.scan(epoch, ts, jax.random.split(key, c.num_epochs))
@@ -428,6 +475,7 @@ class Trainer:
                 lambda ts, k: self._env_step(ts, tuple(jax.random.split(k, 3)), eps),
                 ts,
                 jax.random.split(k_roll, c.rollout_length),
+                unroll=GPU_ROLLOUT_UNROLL if jax.default_backend() == "gpu" else 1,
             )
             ts, aux = self._pqn_learn(ts.replace(key=key), tr, k_learn)
         stats = jax.tree.map(lambda x: x.sum(axis=0), stats)
