@@ -35,7 +35,7 @@ from jaxnav.config import TrainConfig
 from jaxnav.envs.robot.env import LASER_SCALE
 from jaxnav.evaluate import run_episodes
 from jaxnav.experiments import Family, default_families
-from jaxnav.train import Trainer, compiler_options
+from jaxnav.train import Trainer
 
 # RobotNav-v0 before the levers below: the paper's speed, turn rate and reward terms, a 14 m
 # lidar, no waypoint
@@ -243,7 +243,7 @@ def run_row(index: int, episodes: int) -> dict[str, Any]:
     if index >= SPLIT_KEY_ROWS:
         keys = jax.random.split(jax.random.key(0), 1)
     t0 = time.perf_counter()
-    compiled = train.lower(keys).compile(compiler_options())
+    compiled = train.lower(keys).compile()
     t1 = time.perf_counter()
     state, metrics = jax.block_until_ready(compiled(keys))
     state, metrics = jax.tree.map(lambda x: x[0], (state, metrics))

@@ -31,7 +31,7 @@ import jax.numpy as jnp
 
 from benchmarks.common import machine_info, write_results
 from jaxnav.config import TrainConfig
-from jaxnav.train import Trainer, compiler_options
+from jaxnav.train import Trainer
 
 # kind -> substrings of a kernel's name (first match wins, in this order)
 KINDS: dict[str, tuple[str, ...]] = {
@@ -98,7 +98,7 @@ def profile(env: str, algo: str, iterations: int, repeats: int) -> dict[str, Any
     trainer = Trainer(config)
     state = jax.jit(trainer.init)(jax.random.key(0))
     interval = jax.jit(lambda ts: trainer.run(ts, jnp.int32(1), 1)[0])
-    interval = interval.lower(state).compile(compiler_options())
+    interval = interval.lower(state).compile()
     for _ in range(2):
         jax.block_until_ready(interval(state))
     with tempfile.TemporaryDirectory() as tmp:

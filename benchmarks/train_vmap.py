@@ -23,7 +23,7 @@ import numpy as np
 
 from benchmarks.common import machine_info, write_results
 from jaxnav.config import TrainConfig
-from jaxnav.train import Trainer, compiler_options
+from jaxnav.train import Trainer
 
 
 def measure(env: str, algo: str, steps: int, repeats: int) -> dict[str, Any]:
@@ -38,7 +38,7 @@ def measure(env: str, algo: str, steps: int, repeats: int) -> dict[str, Any]:
     compiled = {}
     for name, (fn, arg) in programs.items():
         t0 = time.perf_counter()
-        compiled[name] = fn.lower(arg).compile(compiler_options())
+        compiled[name] = fn.lower(arg).compile()
         rows[name] = {"compile_s": time.perf_counter() - t0, "train_s": float("inf")}
     curves = {}
     for _ in range(repeats):  # in turn, so drifts in clock or load hit both alike

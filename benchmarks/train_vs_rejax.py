@@ -48,7 +48,7 @@ import optax
 
 from jaxnav.config import TrainConfig
 from jaxnav.evaluate import run_episodes, summarize
-from jaxnav.train import Trainer, compiler_options
+from jaxnav.train import Trainer
 from jaxnav.wrappers import GymnaxV0
 
 Side = dict[str, Any]  # one trainer: its compiled interval, state, network and results
@@ -60,7 +60,7 @@ def _our_side(trainer: Trainer, key: jax.Array) -> Side:
     init = jax.jit(trainer.init).lower(key).compile()
     state = init(key)
     interval = jax.jit(lambda ts, log: trainer.run(ts, log, 1), donate_argnums=0)
-    interval = interval.lower(state, jnp.int32(0)).compile(compiler_options())
+    interval = interval.lower(state, jnp.int32(0)).compile()
     return {
         "name": f"jaxnav {c.algo.upper()}",
         "compile_s": time.perf_counter() - t0,

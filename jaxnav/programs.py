@@ -29,7 +29,7 @@ from typing import Any
 import jax
 import numpy as np
 
-from jaxnav.train import Trainer, compiler_options
+from jaxnav.train import Trainer
 
 FORMAT = 1  # bump when what is stored changes
 PACKAGES = ("jax", "jaxlib", "flax", "optax", "mujoco", "mujoco-mjx")
@@ -135,7 +135,7 @@ def compile_training(trainer: Trainer, keys: jax.Array, cache: Path | None) -> T
     with ThreadPoolExecutor(1) as pool, jax.set_mesh(trainer.mesh):
         pending_init = pool.submit(compile_init)
         flat_interval = _jit_exported(interval, trainer.mesh, donate_argnums=0)
-        flat_interval = flat_interval.lower(leaves_like, log_like).compile(compiler_options())
+        flat_interval = flat_interval.lower(leaves_like, log_like).compile()
         flat_init = pending_init.result()
 
     def run_init(keys: jax.Array) -> Any:

@@ -44,24 +44,3 @@ def test_damaged_entry_is_traced_again_and_replaced(tmp_path, cache, capsys):
     assert "from the cache" not in again
     assert "(traced programs from the cache)" in _run(tmp_path / "c", capsys)
     assert (tmp_path / "a/metrics.csv").read_text() == (tmp_path / "c/metrics.csv").read_text()
-
-
-def test_gpu_compiler_options_are_options_xla_takes(tmp_path, capsys, monkeypatch):
-    """The training CLI compiles its interval with ``compiler_options()``; the GPU's are real
-    XLA options (a misspelled or retired one fails the compile), which a CPU ignores: the run
-    with them computes what the run without them does."""
-    from jaxnav import programs
-    from jaxnav.train import GPU_COMPILER_OPTIONS
-
-    _run(tmp_path / "plain", capsys)
-    asked = []
-
-    def gpu_options() -> dict:
-        asked.append(True)
-        return dict(GPU_COMPILER_OPTIONS)
-
-    monkeypatch.setattr(programs, "compiler_options", gpu_options)
-    _run(tmp_path / "gpu", capsys)
-    assert asked
-    plain, gpu = (tmp_path / d / "metrics.csv" for d in ("plain", "gpu"))
-    assert plain.read_text() == gpu.read_text()

@@ -107,22 +107,6 @@ class TrainState:
     diverged_at: jax.Array  # int32, env steps when it was seen (0 if not diverged)
 
 
-# XLA options the training programs compile with on a GPU (``compiler_options()``): loops
-# double-buffered (XLA unrolls each by two and alternates their buffers, which drops copies of
-# loop state between iterations); the RobotNav-v0 PQN preset's iteration on one H100 went from
-# 38.9 to 38.3 ms (rejax's PQN on the same env, compiled with it: 35.8 s -> 35.9 s for 105M steps)
-GPU_COMPILER_OPTIONS: dict[str, Any] = {"xla_gpu_enable_while_loop_double_buffering": True}
-# A GPU runs the rollout's scan unrolled by two: the env's many small kernels of two steps
-# are scheduled together (with double buffering, 38.3 -> 37.5 ms an iteration, as above)
-GPU_ROLLOUT_UNROLL = 2
-
-
-def compiler_options() -> dict[str, Any]:
-    """Options for ``jit(...).lower(...).compile(options)`` of training programs on the
-    default backend: ``GPU_COMPILER_OPTIONS`` on a GPU, none elsewhere."""
-    return dict(GPU_COMPILER_OPTIONS) if jax.default_backend() == "gpu" else {}
-
-
 class Trainer:
     """Builds the environment, network and the compiled pieces of a training run."""
 
@@ -440,8 +424,7 @@ class Trainer:
         loss_fn = self.minibatch_loss(ts)
 
         def epoch(ts, k):
-            # each step gathers its rows, so the gather fuses with the network's input
-            # conversion (a shuffled copy of the rollout was one more pass over it per epoch)
+            # each step gathers its own rows: no shuffled copy of the whole rollout an epoch
             order = jax.random.permutation(k, n).reshape(c.num_minibatches, -1)
             return jax.lax.scan(
                 lambda ts, rows: self.gradient_step(
@@ -475,7 +458,6 @@ class Trainer:
                 lambda ts, k: self._env_step(ts, tuple(jax.random.split(k, 3)), eps),
                 ts,
                 jax.random.split(k_roll, c.rollout_length),
-                unroll=GPU_ROLLOUT_UNROLL if jax.default_backend() == "gpu" else 1,
             )
             ts, aux = self._pqn_learn(ts.replace(key=key), tr, k_learn)
         stats = jax.tree.map(lambda x: x.sum(axis=0), stats)
