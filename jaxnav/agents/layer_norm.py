@@ -39,7 +39,9 @@ KERNEL_WIDTHS = tuple(2**k for k in range(7, 12))  # 128 .. 2048
 # warps, 85 with 16 x 8, 178 with 16 x 4 (``benchmarks/results/layer_norm_blocks_h100.md``).
 # That table ranks two others first (forward at 256: 16 x 8; backward at 512: 16 x 4); in
 # training they changed nothing measurable. 128 and 2048 follow the pattern, unmeasured. A
-# backward instance walking 2 to 16 blocks was slower beyond 2.
+# backward instance walking 2 to 16 blocks (fewer column sums to reduce) was slower beyond 2
+# with 16-row blocks; with 8-row blocks, walking 2 or 4 (1 or 2 pipeline stages) trained
+# within run-to-run noise of one block.
 FORWARD_BLOCKS: dict[int, tuple[int, int]] = dict.fromkeys(KERNEL_WIDTHS, (8, 4))
 BACKWARD_BLOCKS: dict[int, tuple[int, int]] = {
     128: (32, 4),
