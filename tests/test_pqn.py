@@ -150,9 +150,9 @@ NEXT_STEPS, NEXT_ENVS = 6, 4
 @pytest.fixture(scope="module")
 def next_values_of(pqn_trainer):
     """``(done, terminated) -> (next_values, one forward pass over next_obs, the acting
-    pass's values of the following steps)``
-    on a hand-made rollout of NEXT_STEPS x NEXT_ENVS: observations from env resets; after a
-    step that ends an episode, next_obs is another (final) observation than the next step's."""
+    pass's values of the following steps)`` on a hand-made rollout of NEXT_STEPS x NEXT_ENVS:
+    observations from env resets; after a step that ends an episode, next_obs is another
+    (final) observation than the next step's."""
     trainer = pqn_trainer
     steps, envs = NEXT_STEPS, NEXT_ENVS
     q_max = lambda params, obs: trainer.network.apply(params, obs).max(axis=-1)  # noqa: E731
@@ -210,9 +210,8 @@ def test_next_values_read_final_observations_where_the_time_limit_cut(next_value
     done[2, 1] = done[0, 3] = True
     values, one_pass, acted = jax.device_get(next_values_of(done, np.zeros_like(done)))
     np.testing.assert_allclose(values, one_pass, rtol=1e-5, atol=1e-5)
-    cut = done
-    assert not np.allclose(one_pass[cut], acted[cut])  # the two differ there
-    np.testing.assert_allclose(values[~cut], acted[~cut], rtol=1e-5, atol=1e-5)  # acting pass
+    assert not np.allclose(one_pass[done], acted[done])  # the two differ at the cuts
+    np.testing.assert_allclose(values[~done], acted[~done], rtol=1e-5, atol=1e-5)  # acting pass
 
 
 # ------------------------------------------------------------------ tiny runs

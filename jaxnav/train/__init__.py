@@ -390,10 +390,10 @@ class Trainer:
         limit cuts an env at most once in ``max_steps_in_episode`` steps, so, in a rollout
         no longer than that, at most once: one pass over one row an env. Longer rollouts (or
         an env cut twice) take one pass over every next observation."""
-        num_steps = tr.reward.shape[0]
         q_max = lambda obs: self.network.apply(params, obs).max(axis=-1)  # noqa: E731
-        if num_steps > int(self.env_params.max_steps_in_episode):
-            return q_max(tr.next_obs)
+        every = lambda _: q_max(tr.next_obs)  # noqa: E731
+        if tr.reward.shape[0] > int(self.env_params.max_steps_in_episode):
+            return every(None)
         cut = tr.done & ~tr.terminated
 
         def once(_) -> jax.Array:
@@ -402,7 +402,6 @@ class Trainer:
             following = jnp.concatenate([tr.value[1:], q_max(last_obs)[None]])
             return jnp.where(cut, final, following)
 
-        every = lambda _: q_max(tr.next_obs)  # noqa: E731
         return jax.lax.cond((cut.sum(axis=0) <= 1).all(), once, every, None)
 
     def _pqn_learn(
