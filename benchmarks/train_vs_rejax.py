@@ -30,12 +30,16 @@ same ``eval_episodes`` fresh episodes. Reported per side: compile s, train s (th
 intervals), env steps/s, the greedy success curve, and the train time until greedy success
 first reached ``threshold``; the wall-time ratio rejax / ours (speed per env step); and, at
 equal success, the train time each side took to first reach the best success rejax reached in
-the run, and their ratio rejax / ours (speed to a success both reach).
+the run, and their ratio rejax / ours (speed to a success both reach). Beside the final
+success, each side's mean success over the last quarter of its evaluations (``late_success``):
+one evaluation of a trainer whose success swings from check to check says little about what
+a run of it delivers, and a mean over several says more.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 import sys
 import time
 from collections.abc import Callable
@@ -52,6 +56,7 @@ from jaxnav.train import Trainer
 from jaxnav.wrappers import GymnaxV0
 
 Side = dict[str, Any]  # one trainer: its compiled interval, state, network and results
+LATE_FRACTION = 0.25  # late_success: the mean over this last fraction of the evaluations
 
 
 def _our_side(trainer: Trainer, key: jax.Array) -> Side:
@@ -208,6 +213,7 @@ def measure(
             "env_steps": config.num_logs * chunk,
             "env_steps_per_s": config.num_logs * chunk / side["train_s"],
             "final_success": side["curve"][-1]["success"],
+            "late_success": late_success(side["curve"]),
             "time_to_threshold_s": None if reached is None else reached["train_s"],
             "steps_to_threshold": None if reached is None else reached["env_steps"],
             "curve": side["curve"],
@@ -235,6 +241,12 @@ def measure(
     }
 
 
+def late_success(curve: list[dict[str, Any]]) -> float:
+    """The mean success of the last ``LATE_FRACTION`` of a curve's points (at least one)."""
+    late = curve[-max(1, math.ceil(len(curve) * LATE_FRACTION)) :]
+    return sum(p["success"] for p in late) / len(late)
+
+
 def first_reaching(curve: list[dict[str, Any]], success: float) -> dict[str, Any] | None:
     """The first point of a success curve at or above ``success`` (None: never)."""
     return next((p for p in curve if p["success"] >= success), None)
@@ -244,15 +256,16 @@ def table(result: dict[str, Any]) -> str:
     thr = result["threshold"]
     lines = [
         f"| trainer | compile s | train s | env steps/s | final greedy success "
-        f"| train s to success >= {thr:g} |",
-        "|---|---:|---:|---:|---:|---:|",
+        f"| mean success, last quarter | train s to success >= {thr:g} |",
+        "|---|---:|---:|---:|---:|---:|---:|",
     ]
     for name, s in result["sides"].items():
         t = s["time_to_threshold_s"]
         reached = "not reached" if t is None else f"{t:.1f} ({s['steps_to_threshold']:,} steps)"
         lines.append(
             f"| {name} | {s['compile_s']:.1f} | {s['train_s']:.1f} | "
-            f"{s['env_steps_per_s']:,.0f} | {s['final_success']:.3f} | {reached} |"
+            f"{s['env_steps_per_s']:,.0f} | {s['final_success']:.3f} | "
+            f"{late(s)} | {reached} |"
         )
     lines.append(f"\nWall-time ratio rejax / ours: **{result['wall_time_ratio']:.2f}x**")
     lines.append(f"\n{equal_success(result)}")
@@ -270,6 +283,19 @@ def equal_success(result: dict[str, Any]) -> str:
     return head + f"jaxnav {t_ours:.1f} / rejax {t_theirs:.1f}, rejax / ours **{ratio:.2f}x**"
 
 
+def late(side: dict[str, Any]) -> str:
+    """A side's ``late_success``, "n/a" in results measured before it was recorded."""
+    value = side.get("late_success")
+    return "n/a" if value is None else f"{value:.3f}"
+
+
+def success_each(result: dict[str, Any], field: str) -> str:
+    """A success of each side, "jaxnav / rejax"."""
+    return " / ".join(
+        "n/a" if s.get(field) is None else f"{s[field]:.3f}" for s in result["sides"].values()
+    )
+
+
 def seconds_each(result: dict[str, Any], field: str) -> str:
     """A time of each side, "jaxnav / rejax" ("-" where that side never reached it)."""
     return " / ".join(
@@ -277,14 +303,38 @@ def seconds_each(result: dict[str, Any], field: str) -> str:
     )
 
 
+def mean_row(runs: list[dict[str, Any]]) -> str:
+    """``summary``'s row of means over several seeds' runs of one network."""
+    sides = [[list(r["sides"].values())[i] for r in runs] for i in (0, 1)]
+
+    def means(field: str) -> list[float] | None:
+        if any(s.get(field) is None for side in sides for s in side):
+            return None
+        return [sum(s[field] for s in side) / len(side) for side in sides]
+
+    def success(field: str) -> str:
+        values = means(field)
+        return "n/a" if values is None else " / ".join(f"{x:.3f}" for x in values)
+
+    train_s = means("train_s")
+    ratio = sum(r["wall_time_ratio"] for r in runs) / len(runs)
+    return (
+        f"| {'-'.join(map(str, runs[0]['hidden_sizes']))} | mean of {len(runs)} | "
+        f"| {train_s[0]:.1f} | {train_s[1]:.1f} | {ratio:.2f}x | {success('final_success')} "
+        f"| {success('late_success')} | | | | |"
+    )
+
+
 def summary(results: list[dict[str, Any]]) -> str:
-    """One row per network of ``measure`` results: train time of each side and the ratio."""
+    """One row per run of ``measure`` results: train time of each side, the ratio, and the
+    successes; then, for a network run with several seeds, a row of their means."""
     thr = results[0]["threshold"]
     lines = [
         "| network | seed | weights | jaxnav train s | rejax train s | rejax / ours "
+        "| final success, jaxnav / rejax | mean success of the last quarter, jaxnav / rejax "
         f"| train s to success >= {thr:g}, jaxnav / rejax | rejax's best success "
         "| train s to it, jaxnav / rejax | rejax / ours at equal success |",
-        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for r in results:
         ours, theirs = r["sides"].values()
@@ -292,8 +342,13 @@ def summary(results: list[dict[str, Any]]) -> str:
         lines.append(
             f"| {'-'.join(map(str, r['hidden_sizes']))} | {r['seed']} "
             f"| {r['network_weights']:,} | {ours['train_s']:.1f} | {theirs['train_s']:.1f} "
-            f"| {r['wall_time_ratio']:.2f}x | {seconds_each(r, 'time_to_threshold_s')} "
+            f"| {r['wall_time_ratio']:.2f}x | {success_each(r, 'final_success')} "
+            f"| {success_each(r, 'late_success')} | {seconds_each(r, 'time_to_threshold_s')} "
             f"| {r['peer_best_success']:.3f} | {seconds_each(r, 'time_to_peer_best_s')} "
             f"| {'jaxnav did not reach it' if ratio is None else f'{ratio:.2f}x'} |"
         )
+    by_network: dict[tuple[int, ...], list[dict[str, Any]]] = {}
+    for r in results:
+        by_network.setdefault(tuple(r["hidden_sizes"]), []).append(r)
+    lines += [mean_row(runs) for runs in by_network.values() if len(runs) > 1]
     return "\n".join(lines)

@@ -105,6 +105,38 @@ def test_train_networks_default_to_the_configs_and_rejaxs() -> None:
     assert given.train_networks == [(32,), (16, 8)]
 
 
+def _run(seed: int, ours: tuple, theirs: tuple) -> dict:
+    """A hand-made ``train_vs_rejax.measure`` result: (train s, final, late success) a side."""
+
+    def side(train_s: float, final: float, late: float | None) -> dict:
+        none = {"time_to_threshold_s": None, "time_to_peer_best_s": None}
+        return {"train_s": train_s, "final_success": final, "late_success": late} | none
+
+    return {
+        "hidden_sizes": [16], "seed": seed, "network_weights": 10, "threshold": 0.9,
+        "wall_time_ratio": theirs[0] / ours[0], "peer_best_success": 0.9,
+        "equal_success_ratio": None,
+        "sides": {"jaxnav PQN": side(*ours), "rejax PQN": side(*theirs)},
+    }  # fmt: skip
+
+
+def test_late_success_and_the_mean_over_seeds() -> None:
+    curve = [{"success": s} for s in (0.1, 0.2, 0.3, 0.4, 0.5, 0.9, 0.5, 0.7)]
+    assert train_vs_rejax.late_success(curve) == pytest.approx(0.6)  # the last 2 of 8
+    assert train_vs_rejax.late_success(curve[:3]) == pytest.approx(0.3)  # at least one
+    runs = [_run(0, (1.0, 0.9, 0.8), (2.0, 0.7, 0.6)), _run(1, (1.0, 0.7, 0.6), (4.0, 0.9, 0.8))]
+    md = train_vs_rejax.summary(runs)
+    assert "| 16 | 0 | 10 | 1.0 | 2.0 | 2.00x | 0.900 / 0.700 | 0.800 / 0.600 |" in md
+    # the means: train s, the ratio of each seed's times, then final and late success
+    assert "| 16 | mean of 2 | | 1.0 | 3.0 | 3.00x | 0.800 / 0.800 | 0.700 / 0.700 |" in md
+    one = train_vs_rejax.summary(runs[:1])
+    assert "mean of" not in one  # one seed: no mean row
+    # results recorded before late success existed say so instead of a number
+    old = [_run(0, (1.0, 0.9, None), (2.0, 0.7, None)), _run(1, (1.0, 0.7, None), (2.0, 0.9, None))]
+    assert "| 0.900 / 0.700 | n/a / n/a |" in train_vs_rejax.summary(old)
+    assert "| 0.800 / 0.800 | n/a |" in train_vs_rejax.summary(old)
+
+
 @pytest.mark.slow
 def test_train_vs_rejax_same_budget_and_curves() -> None:
     pytest.importorskip("rejax")
@@ -121,6 +153,7 @@ def test_train_vs_rejax_same_budget_and_curves() -> None:
         assert all(0.0 <= p["success"] <= 1.0 for p in s["curve"])
         reached = [p for p in s["curve"] if p["success"] >= 0.5]
         assert s["time_to_threshold_s"] == (reached[0]["train_s"] if reached else None)
+        assert s["late_success"] == s["curve"][-1]["success"]  # 2 checks: the last quarter is 1
     ratio = sides["rejax DQN"]["train_s"] / sides["jaxnav DQN"]["train_s"]
     assert result["wall_time_ratio"] == pytest.approx(ratio)
     assert result["hidden_sizes"] == [16] and result["network_weights"] == 27 * 16 + 17 * 5
