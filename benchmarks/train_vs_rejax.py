@@ -265,7 +265,7 @@ def table(result: dict[str, Any]) -> str:
         lines.append(
             f"| {name} | {s['compile_s']:.1f} | {s['train_s']:.1f} | "
             f"{s['env_steps_per_s']:,.0f} | {s['final_success']:.3f} | "
-            f"{late(s)} | {reached} |"
+            f"{success_text(s.get('late_success'))} | {reached} |"
         )
     lines.append(f"\nWall-time ratio rejax / ours: **{result['wall_time_ratio']:.2f}x**")
     lines.append(f"\n{equal_success(result)}")
@@ -283,17 +283,14 @@ def equal_success(result: dict[str, Any]) -> str:
     return head + f"jaxnav {t_ours:.1f} / rejax {t_theirs:.1f}, rejax / ours **{ratio:.2f}x**"
 
 
-def late(side: dict[str, Any]) -> str:
-    """A side's ``late_success``, "n/a" in results measured before it was recorded."""
-    value = side.get("late_success")
+def success_text(value: float | None) -> str:
+    """A success rate, "n/a" where it was not recorded (``late_success`` in older results)."""
     return "n/a" if value is None else f"{value:.3f}"
 
 
 def success_each(result: dict[str, Any], field: str) -> str:
     """A success of each side, "jaxnav / rejax"."""
-    return " / ".join(
-        "n/a" if s.get(field) is None else f"{s[field]:.3f}" for s in result["sides"].values()
-    )
+    return " / ".join(success_text(s.get(field)) for s in result["sides"].values())
 
 
 def seconds_each(result: dict[str, Any], field: str) -> str:
@@ -314,7 +311,7 @@ def mean_row(runs: list[dict[str, Any]]) -> str:
 
     def success(field: str) -> str:
         values = means(field)
-        return "n/a" if values is None else " / ".join(f"{x:.3f}" for x in values)
+        return "n/a" if values is None else " / ".join(map(success_text, values))
 
     train_s = means("train_s")
     ratio = sum(r["wall_time_ratio"] for r in runs) / len(runs)
