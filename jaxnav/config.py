@@ -44,7 +44,7 @@ class TrainConfig:
     double: bool = True
     layer_norm: bool = False
     # with layer_norm: LayerNorm and ReLU as one op with a float32 gradient
-    # (``agents.layer_norm``), Pallas kernels on one GPU, the same math in jnp on a CPU
+    # (``agents.layer_norm``), Pallas kernels on GPUs, the same math in jnp on a CPU
     # (``Trainer.norm_impl``)
     fused_layer_norm: bool = False
     compute_dtype: str = "float32"  # of the hidden layers' matrix products

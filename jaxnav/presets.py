@@ -68,7 +68,7 @@ ROBOT_PQN: dict[str, Any] = {
 # steps win (839M steps in 167 s: 0.978 held-out, 0.91 on RobotSimple-v0; 419M in 144 s:
 # 0.976, 0.81). The wider network (1024-512-256) in bfloat16 took held-out success from 0.91
 # to 0.96 (benchmarks/results/generalist_sweep_h100.md: rows 17-19, and 20-25 for the
-# minibatches and steps). The fused LayerNorm (Pallas kernels on one GPU) trains faster with
+# minibatches and steps). The fused LayerNorm (Pallas kernels on a GPU) trains faster with
 # equal success (row 29 against row 28).
 GENERALIST_PQN: dict[str, Any] = {
     **PQN,

@@ -12,6 +12,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from conftest import TINY_TRAIN
+from jax.sharding import Mesh, NamedSharding
+from jax.sharding import PartitionSpec as P
 
 from jaxnav.agents import dqn
 from jaxnav.agents.layer_norm import kernel_fits, layer_norm_relu
@@ -108,6 +110,43 @@ def test_kernels_under_vmap_over_seeds_compute_each_seed_alone():
             np.testing.assert_allclose(b[s], a, rtol=1e-6, atol=1e-6)
 
 
+def mesh_of(seeds: int, envs: int) -> Mesh:
+    return Mesh(np.array(jax.devices()[: seeds * envs]).reshape(seeds, envs), ("seeds", "envs"))
+
+
+@pytest.mark.parametrize("rows", [64, 30, 31], ids=["kernels", "jnp-per-device", "uneven"])
+def test_rows_split_over_devices_compute_flax_layer_norm_relu(rows):
+    """Over two devices each computes its own rows (through the kernels where they fit) and
+    the parameters' gradients are the sums over both devices' rows."""
+    mesh = mesh_of(1, 2)
+    args, cotangent = inputs(rows)
+    split = lambda *a: layer_norm_relu(*a, pallas=True, mesh=mesh, rows_axis="envs")  # noqa: E731
+    args = (jax.device_put(args[0], NamedSharding(mesh, P("envs") if rows % 2 == 0 else P())),)
+    args += inputs(rows)[0][1:]
+    assert uses_kernel(split, args) == (rows == 64)
+    assert_computes_flax_layer_norm_relu(jax.jit(split), args, cotangent)
+    out = jax.jit(split)(*args)
+    if rows % 2 == 0:  # the rows stay where they were: no device computes the other's
+        assert out.sharding.is_equivalent_to(NamedSharding(mesh, P("envs")), out.ndim)
+
+
+def test_seeds_split_over_devices_compute_each_seed_alone():
+    """Under ``vmap(spmd_axis_name=...)`` over seeds, a seed a device: the same values and
+    gradients as each seed alone on one device."""
+    mesh = mesh_of(2, 1)
+    seeds = [inputs(seed=s) for s in range(2)]
+    stacked = jax.tree.map(lambda *x: jnp.stack(x), *[a for a, _ in seeds])
+    stacked = jax.device_put(stacked, NamedSharding(mesh, P("seeds")))
+    cotangents = jnp.stack([c for _, c in seeds])
+    split = lambda *a: layer_norm_relu(*a, pallas=True, mesh=mesh, rows_axis="envs")  # noqa: E731
+    per_seed = lambda a, c: value_and_grads(split, a, c)  # noqa: E731
+    batched = jax.jit(jax.vmap(per_seed, spmd_axis_name="seeds"))(stacked, cotangents)
+    for s, (args, cotangent) in enumerate(seeds):
+        alone = value_and_grads(lambda *a: layer_norm_relu(*a, pallas=True), args, cotangent)
+        for b, a in zip(jax.tree.leaves(batched), jax.tree.leaves(alone), strict=True):
+            np.testing.assert_allclose(b[s], a, rtol=1e-6, atol=1e-6)
+
+
 @pytest.mark.parametrize("dueling", [True, False], ids=["dueling", "plain"])
 def test_network_implementations_share_parameters_and_compute_alike(dueling):
     """Checkpoints and exports read one parameter tree whichever implementation trained it."""
@@ -139,14 +178,15 @@ def test_network_implementations_share_parameters_and_compute_alike(dueling):
         dqn.QNetwork(4, layer_norm=True, norm_impl="triton").init(jax.random.key(0), obs)
 
 
-def test_trainer_fuses_only_when_asked_and_uses_kernels_only_on_one_gpu():
+def test_trainer_fuses_only_when_asked_and_uses_kernels_only_on_gpus():
     pqn = dataclasses.replace(TINY_TRAIN, algo="pqn", layer_norm=True)
     assert Trainer.norm_impl(pqn) == "flax"
     fused = dataclasses.replace(pqn, fused_layer_norm=True)
     on_gpu = jax.default_backend() == "gpu"
     assert Trainer.norm_impl(fused) == ("pallas" if on_gpu else "fused")
-    assert Trainer.norm_impl(dataclasses.replace(fused, devices=2)) == (
-        "flax" if on_gpu else "fused"
-    )
+    two = dataclasses.replace(fused, devices=2)
+    assert Trainer.norm_impl(two) == ("pallas" if on_gpu else "fused")
+    assert Trainer(two).learner_network.mesh.size == 2
+    assert Trainer(fused).learner_network.mesh is None and Trainer(two).network.mesh is None
     # the flag says how a LayerNorm is computed; without one there is nothing to fuse
     assert Trainer.norm_impl(dataclasses.replace(fused, layer_norm=False)) == "flax"

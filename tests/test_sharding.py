@@ -115,3 +115,34 @@ def test_cli_devices_all_records_the_count(tmp_path):
 def test_config_names_the_indivisible_batch():
     with pytest.raises(ValueError, match="batch_size=7 is not a multiple of the 2 devices"):
         TrainConfig(num_envs=4, batch_size=7, devices=2).validate()
+
+
+# PQN with the fused LayerNorm at a width the kernels take (128) and rows they fit on each of
+# two devices (32 envs a device acting, 64 rows a device in a minibatch)
+FUSED_PQN = dataclasses.replace(
+    TINY_TRAIN, algo="pqn", layer_norm=True, fused_layer_norm=True, hidden_sizes=(128,),
+    num_envs=64, rollout_length=4, num_minibatches=2, num_epochs=1, total_timesteps=512,
+    log_interval=256,
+)  # fmt: skip
+
+
+@pytest.mark.parametrize("num_seeds", [1, 2], ids=["env-shards", "seed-shards"])
+def test_kernels_over_devices_train_as_one_device(num_seeds, monkeypatch):
+    """The LayerNorm kernels (Pallas's interpreter here, as on a GPU) on each device's rows
+    or seeds train what one device trains, up to the order of floating-point sums."""
+    monkeypatch.setattr(Trainer, "norm_impl", staticmethod(lambda config: "pallas"))
+    keys = jax.random.split(jax.random.key(7), num_seeds)
+    config = dataclasses.replace(FUSED_PQN, num_seeds=num_seeds)
+    two = Trainer(dataclasses.replace(config, devices=2))
+    assert two.learner_network.norm_impl == "pallas" and two.learner_network.mesh.size == 2
+    assert two.network.mesh is None  # evaluation and export: one device's arrays
+    _, interval, state_like = two.sharded(keys)
+    program = str(jax.make_jaxpr(interval)(state_like, np.int32(0)))
+    assert "pallas_call" in program and "shard_map" in program  # the kernels, on each device
+    state2, metrics2 = run_sharded(two, keys)
+    state1, metrics1 = run_sharded(Trainer(config), keys)
+    assert metrics1["loss"].shape == (num_seeds, 2) and (metrics1["loss"] > 0).all()
+    for k in metrics1:
+        np.testing.assert_allclose(metrics1[k], metrics2[k], rtol=1e-4, atol=1e-5, err_msg=k)
+    close = lambda a, b: np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5)  # noqa: E731
+    jax.tree.map(close, jax.device_get(state1.params), jax.device_get(state2.params))

@@ -15,6 +15,7 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 from flax import struct
+from jax.sharding import Mesh
 
 from jaxnav.agents.layer_norm import layer_norm_relu
 
@@ -110,6 +111,8 @@ class QNetwork(nn.Module):
     layer_norm: bool = False
     compute_dtype: str = "float32"
     norm_impl: str = "flax"
+    mesh: Mesh | None = None  # "pallas" over several devices: each device's rows
+    rows_axis: str | None = None  # the mesh axis the rows (envs, batch) are split over
 
     @nn.compact
     def __call__(self, obs: jax.Array) -> jax.Array:
@@ -129,7 +132,10 @@ class QNetwork(nn.Module):
                 kernel, dense_bias = DenseParams(width, name=f"Dense_{i}")(x.shape[-1])
                 scale, bias = LayerNormParams(name=f"LayerNorm_{i}")(width)
                 z = jnp.dot(x.astype(dtype), kernel.astype(dtype))
-                x = layer_norm_relu(z, dense_bias, scale, bias, self.norm_impl == "pallas")
+                x = layer_norm_relu(
+                    z, dense_bias, scale, bias, self.norm_impl == "pallas", self.mesh,
+                    self.rows_axis,
+                )  # fmt: skip
                 continue
             x = nn.Dense(width, dtype=dtype)(x)
             if self.layer_norm:

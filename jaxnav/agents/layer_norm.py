@@ -19,6 +19,11 @@ times (with flax's LayerNorm, reductions took 44% of the GPU's kernel time:
 ``benchmarks/results/archive/profile_training_h100_RobotNav-v0_flax_norm.md``). On a backend
 without Triton the kernels run in Pallas's interpreter (tests), and shapes they do not take
 (``kernel_fits``) use the jnp form. ``pallas=False``: jnp, which XLA fuses as it can.
+
+XLA cannot split a kernel's rows over devices. Given a ``mesh`` of several devices, the kernels
+run on each device's rows (``shard_map``, the rows split over ``rows_axis``, a vmapped seed
+axis over the vmap's ``spmd_axis_name``), and the parameter gradients are summed over the
+devices; row counts the devices do not divide evenly take the jnp form.
 """
 
 from __future__ import annotations
@@ -28,6 +33,8 @@ import functools
 import jax
 import jax.numpy as jnp
 from jax.experimental import pallas as pl
+from jax.sharding import Mesh
+from jax.sharding import PartitionSpec as P
 
 EPSILON = 1e-6  # flax.linen.LayerNorm's default
 # widths the kernels take: a whole row is one block, Triton wants powers of two
@@ -61,16 +68,39 @@ def kernel_fits(rows: int, width: int) -> bool:
 
 
 def layer_norm_relu(
-    z: jax.Array, dense_bias: jax.Array, scale: jax.Array, bias: jax.Array, pallas: bool = False
+    z: jax.Array,
+    dense_bias: jax.Array,
+    scale: jax.Array,
+    bias: jax.Array,
+    pallas: bool = False,
+    mesh: Mesh | None = None,
+    rows_axis: str | None = None,
 ) -> jax.Array:
     """``relu(LayerNorm(z + dense_bias) * scale + bias)`` over the last axis, in ``z``'s dtype.
 
     ``dense_bias``, ``scale`` and ``bias`` are [width] (float32 parameters); leading axes of
-    ``z`` are rows. Differentiable in all four (a ``custom_vjp``)."""
+    ``z`` are rows. Differentiable in all four (a ``custom_vjp``). With ``pallas`` and a
+    ``mesh`` of several devices, each device's rows (split over ``rows_axis``) go through the
+    kernels on that device."""
     shape = z.shape
     rows = z.reshape(-1, shape[-1])
-    kernel = pallas and kernel_fits(*rows.shape)
-    return _layer_norm_relu(kernel, rows, dense_bias, scale, bias).reshape(shape)
+    if not (pallas and mesh is not None and mesh.size > 1):
+        kernel = pallas and kernel_fits(*rows.shape)
+        return _layer_norm_relu(kernel, rows, dense_bias, scale, bias).reshape(shape)
+    parts = mesh.shape[rows_axis]
+    if rows.shape[0] % parts:
+        return _layer_norm_relu(False, rows, dense_bias, scale, bias).reshape(shape)
+    per_device = functools.partial(_layer_norm_relu, kernel_fits(rows.shape[0] // parts, shape[-1]))
+    # check_vma=False: pallas_call carries no varying-axes types; the transpose then sums
+    # the parameters' cotangents over the devices, as replicated inputs need
+    split = jax.shard_map(
+        per_device,
+        mesh=mesh,
+        in_specs=(P(rows_axis), P(), P(), P()),
+        out_specs=P(rows_axis),
+        check_vma=False,
+    )
+    return split(rows, dense_bias, scale, bias).reshape(shape)
 
 
 # ----------------------------------------------------------------------------- the math

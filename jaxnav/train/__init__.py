@@ -114,6 +114,7 @@ class Trainer:
         config.validate()
         self.config = config
         self.env, self.env_params = make(config.env, **config.env_kwargs)
+        self.mesh = sharding.make_mesh(config.num_seeds, config.devices)
         self.network = dqn.QNetwork(
             num_actions=self.env.num_actions,
             hidden_sizes=tuple(config.hidden_sizes),
@@ -123,21 +124,25 @@ class Trainer:
             compute_dtype=config.compute_dtype,
             norm_impl=self.norm_impl(config),
         )
+        # the network of the training program: over several devices its LayerNorm kernels
+        # run on each device's rows; evaluation and export read ``network``, whose arrays are
+        # not split over the mesh (one seed's episodes, a deployed policy)
+        self.learner_network = (
+            self.network.clone(mesh=self.mesh, rows_axis=ENVS)
+            if config.devices > 1
+            else self.network
+        )
         self.obs_size = self.env.observation_space(self.env_params).shape[0]
         self._check_memory()
-        self.mesh = sharding.make_mesh(config.num_seeds, config.devices)
 
     @staticmethod
     def norm_impl(config: TrainConfig) -> str:
         """``QNetwork.norm_impl`` for ``config``: with ``fused_layer_norm``, the Pallas kernels
-        where one GPU holds the whole batch; on a CPU the jnp form (the kernels' math, a little
-        faster than flax's there); across several GPUs, which XLA cannot split a kernel's rows
-        over, flax's LayerNorm (the jnp form is slower than flax's on a GPU)."""
+        on a GPU (over several, on each device's rows); on a CPU the jnp form (the kernels'
+        math, a little faster than flax's there)."""
         if not (config.layer_norm and config.fused_layer_norm):
             return "flax"
-        if jax.default_backend() != "gpu":
-            return "fused"
-        return "pallas" if config.devices == 1 else "flax"
+        return "pallas" if jax.default_backend() == "gpu" else "fused"
 
     @property
     def network_input(self) -> dqn.InputSpec:
@@ -260,12 +265,14 @@ class Trainer:
         c = self.config
         if c.algo == "dqn":
             return lambda params, batch: dqn.td_loss(
-                params, ts.target_params, self.network.apply, batch, c.double, c.loss
+                params, ts.target_params, self.learner_network.apply, batch, c.double, c.loss
             )
 
         def loss_fn(params, batch):
             obs, action, target = batch
-            return dqn.regression_loss(params, self.network.apply, obs, action, target, c.loss)
+            return dqn.regression_loss(
+                params, self.learner_network.apply, obs, action, target, c.loss
+            )
 
         return loss_fn
 
@@ -296,7 +303,7 @@ class Trainer:
         acting Q-values were finite, and episode statistics (sums over envs)."""
         c = self.config
         k_act, k_eps, k_step = keys
-        q = self.network.apply(ts.params, ts.obs)
+        q = self.learner_network.apply(ts.params, ts.obs)
         explore = jax.random.uniform(k_eps, (c.num_envs,)) < eps
         random_action = jax.random.randint(k_act, (c.num_envs,), 0, self.env.num_actions)
         action = jnp.where(explore, random_action, jnp.argmax(q, axis=-1))
@@ -390,7 +397,7 @@ class Trainer:
         limit cuts an env at most once in ``max_steps_in_episode`` steps, so, in a rollout
         no longer than that, at most once: one pass over one row an env. Longer rollouts (or
         an env cut twice) take one pass over every next observation."""
-        q_max = lambda obs: self.network.apply(params, obs).max(axis=-1)  # noqa: E731
+        q_max = lambda obs: self.learner_network.apply(params, obs).max(axis=-1)  # noqa: E731
         every = lambda _: q_max(tr.next_obs)  # noqa: E731
         if tr.reward.shape[0] > int(self.env_params.max_steps_in_episode):
             return every(None)

@@ -57,7 +57,7 @@ HELP = {
     "rollouts of many envs, no replay)",
     "layer_norm": "LayerNorm before each hidden ReLU (PQN's network)",
     "fused_layer_norm": "LayerNorm and ReLU as one op with a float32 gradient: Pallas kernels "
-    "on one GPU, jnp on a CPU, flax's LayerNorm across several GPUs",
+    "on a GPU (on each device's rows over several), jnp on a CPU",
     "compute_dtype": "float32 or bfloat16 matrix products in the hidden layers",
     "rollout_length": "pqn: env steps of every env per iteration",
     "num_epochs": "pqn: passes over each rollout",
