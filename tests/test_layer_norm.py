@@ -121,8 +121,8 @@ def test_rows_split_over_devices_compute_flax_layer_norm_relu(rows):
     mesh = mesh_of(1, 2)
     args, cotangent = inputs(rows)
     split = lambda *a: layer_norm_relu(*a, pallas=True, mesh=mesh, rows_axis="envs")  # noqa: E731
-    args = (jax.device_put(args[0], NamedSharding(mesh, P("envs") if rows % 2 == 0 else P())),)
-    args += inputs(rows)[0][1:]
+    z = jax.device_put(args[0], NamedSharding(mesh, P("envs") if rows % 2 == 0 else P()))
+    args = (z, *args[1:])
     assert uses_kernel(split, args) == (rows == 64)
     assert_computes_flax_layer_norm_relu(jax.jit(split), args, cotangent)
     out = jax.jit(split)(*args)

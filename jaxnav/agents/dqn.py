@@ -132,10 +132,8 @@ class QNetwork(nn.Module):
                 kernel, dense_bias = DenseParams(width, name=f"Dense_{i}")(x.shape[-1])
                 scale, bias = LayerNormParams(name=f"LayerNorm_{i}")(width)
                 z = jnp.dot(x.astype(dtype), kernel.astype(dtype))
-                x = layer_norm_relu(
-                    z, dense_bias, scale, bias, self.norm_impl == "pallas", self.mesh,
-                    self.rows_axis,
-                )  # fmt: skip
+                pallas = self.norm_impl == "pallas"
+                x = layer_norm_relu(z, dense_bias, scale, bias, pallas, self.mesh, self.rows_axis)
                 continue
             x = nn.Dense(width, dtype=dtype)(x)
             if self.layer_norm:

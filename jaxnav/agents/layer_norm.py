@@ -84,23 +84,23 @@ def layer_norm_relu(
     kernels on that device."""
     shape = z.shape
     rows = z.reshape(-1, shape[-1])
-    if not (pallas and mesh is not None and mesh.size > 1):
-        kernel = pallas and kernel_fits(*rows.shape)
-        return _layer_norm_relu(kernel, rows, dense_bias, scale, bias).reshape(shape)
-    parts = mesh.shape[rows_axis]
-    if rows.shape[0] % parts:
-        return _layer_norm_relu(False, rows, dense_bias, scale, bias).reshape(shape)
-    per_device = functools.partial(_layer_norm_relu, kernel_fits(rows.shape[0] // parts, shape[-1]))
-    # check_vma=False: pallas_call carries no varying-axes types; the transpose then sums
-    # the parameters' cotangents over the devices, as replicated inputs need
-    split = jax.shard_map(
-        per_device,
-        mesh=mesh,
-        in_specs=(P(rows_axis), P(), P(), P()),
-        out_specs=P(rows_axis),
-        check_vma=False,
-    )
-    return split(rows, dense_bias, scale, bias).reshape(shape)
+    split = pallas and mesh is not None and mesh.size > 1
+    parts = mesh.shape[rows_axis] if split else 1
+    if rows.shape[0] % parts:  # rows the devices do not divide evenly: the jnp form
+        split = pallas = False
+    kernel = pallas and kernel_fits(rows.shape[0] // parts, shape[-1])
+    op = functools.partial(_layer_norm_relu, kernel)
+    if split:
+        # check_vma=False: pallas_call carries no varying-axes types; the transpose then sums
+        # the parameters' cotangents over the devices, as replicated inputs need
+        op = jax.shard_map(
+            op,
+            mesh=mesh,
+            in_specs=(P(rows_axis), P(), P(), P()),
+            out_specs=P(rows_axis),
+            check_vma=False,
+        )
+    return op(rows, dense_bias, scale, bias).reshape(shape)
 
 
 # ----------------------------------------------------------------------------- the math
