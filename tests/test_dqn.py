@@ -368,12 +368,17 @@ def iteration_by_iteration(config):
         yield it, before, ts
 
 
-def test_target_updates_at_the_gradient_step_whose_env_steps_cross_the_period(tiny_config):
+@pytest.mark.parametrize("select", [False, True], ids=["cond", "select"])
+def test_target_updates_at_the_gradient_step_whose_env_steps_cross_the_period(
+    tiny_config, monkeypatch, select
+):
     """4 envs and 4 gradient steps an iteration: each step stands for one env step. With a
     period of 3, iteration i crosses multiples of 3 in (4i, 4i + 4]; the hard copy after the
     iteration is the parameters after the last step that crossed one, so it equals the final
     parameters exactly when 4i + 4 is a multiple of 3, and otherwise those of an earlier step
-    (neither the iteration's final parameters nor the previous target)."""
+    (neither the iteration's final parameters nor the previous target). Both forms of the
+    update: the CPU's cond and the GPU's select."""
+    monkeypatch.setattr(Trainer, "target_update_select", staticmethod(lambda: select))
     c = dataclasses.replace(
         tiny_config, batch_size=2, replay_ratio=2.0, target_update_period=3,
         total_timesteps=10 * tiny_config.num_envs,

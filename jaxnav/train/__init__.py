@@ -144,6 +144,13 @@ class Trainer:
             return "flax"
         return "pallas" if jax.default_backend() == "gpu" else "fused"
 
+    @staticmethod
+    def target_update_select() -> bool:
+        """Whether DQN's target update is a select over the parameters, as on a GPU, where
+        the cond, once a gradient step, cost more (H100, 4,096 envs, batch 1,024: 177 -> 166 us
+        a gradient step); on a CPU the cond skips the parameter-sized work."""
+        return jax.default_backend() != "cpu"
+
     @property
     def network_input(self) -> dqn.InputSpec:
         """What the network reads: ``(obs_size, onehot_sizes)``."""
@@ -350,23 +357,30 @@ class Trainer:
         # stand for num_envs / u of its env steps, and a step whose share crosses a multiple
         # updates it. So target_update_period means the same at any num_envs, also where one
         # iteration of many envs spans several periods. Env steps and the offsets are
-        # unbatched under vmap, so the cond skips the parameter-sized work for real.
+        # unbatched under vmap, so on a CPU the cond skips the parameter-sized work for real.
         period, u = c.target_update_period, c.updates_per_iteration
         ends = (np.arange(1, u + 1, dtype=np.int64) * c.num_envs // u).astype(np.int32)
         starts = np.concatenate([[0], ends[:-1]]).astype(np.int32)
+
+        def updated_target(ts: TrainState) -> Any:
+            return dqn.polyak(ts.target_params, ts.params, hp.tau)
 
         def update(ts, xs):
             k, start, end = xs
             ts, aux = self._dqn_update(ts, k)
             crossed = (env_steps + end) // period > (env_steps + start) // period
-            ts = jax.lax.cond(
-                crossed,
-                lambda ts: ts.replace(
-                    target_params=dqn.polyak(ts.target_params, ts.params, hp.tau)
-                ),
-                lambda ts: ts,
-                ts,
-            )
+            if self.target_update_select():
+                target = jax.tree.map(
+                    partial(jnp.where, crossed), updated_target(ts), ts.target_params
+                )
+                ts = ts.replace(target_params=target)
+            else:
+                ts = jax.lax.cond(
+                    crossed,
+                    lambda ts: ts.replace(target_params=updated_target(ts)),
+                    lambda ts: ts,
+                    ts,
+                )
             return ts, aux
 
         def updates(ts):
