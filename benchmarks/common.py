@@ -14,6 +14,8 @@ from typing import Any
 
 import jax
 
+from jaxnav.config import TrainConfig
+
 
 def machine_info() -> dict[str, Any]:
     return {
@@ -96,3 +98,18 @@ def time_in_turn(rows: list[dict[str, Any]], rounds: int) -> None:
             row.setdefault("run_s", []).append(row["run"]())
     for row in rows:
         del row["run"]
+
+
+def train_config(overrides: str) -> TrainConfig:
+    """The training CLI's config for ``overrides``, a JSON object of ``TrainConfig`` fields: the
+    preset of its env (default GridMaze-v0, the paper's grid experiment) and algorithm, then the
+    other fields."""
+    values = json.loads(overrides)
+    if not isinstance(values, dict):
+        raise ValueError("must be a JSON object of TrainConfig fields")
+    if "hidden_sizes" in values:
+        values["hidden_sizes"] = tuple(values["hidden_sizes"])
+    # the env's preset for the algorithm first, as the training CLI applies it
+    config = TrainConfig.for_env(values.pop("env", "GridMaze-v0"), **values)
+    config.validate()
+    return config

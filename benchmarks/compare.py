@@ -35,7 +35,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import os
 import resource
 import sys
@@ -45,7 +44,7 @@ from typing import Any
 import jax
 
 from benchmarks import compile_time, env_throughput, train_vs_rejax
-from benchmarks.common import machine_info, package_version, write_results
+from benchmarks.common import machine_info, package_version, train_config, write_results
 from jaxnav.config import TrainConfig
 
 DEFAULT_OUT = Path("benchmarks/results/compare.json")
@@ -172,21 +171,6 @@ def plot(rows: list[dict[str, Any]], out: Path, title: str) -> None:
     fig.tight_layout()
     fig.savefig(out, dpi=120)
     plt.close(fig)
-
-
-def train_config(overrides: str) -> TrainConfig:
-    """The training CLI's config for ``overrides``, a JSON object of ``TrainConfig`` fields: the
-    preset of its env (default GridMaze-v0, the paper's grid experiment) and algorithm, then the
-    other fields."""
-    values = json.loads(overrides)
-    if not isinstance(values, dict):
-        raise ValueError("must be a JSON object of TrainConfig fields")
-    if "hidden_sizes" in values:
-        values["hidden_sizes"] = tuple(values["hidden_sizes"])
-    # the env's preset for the algorithm first, as the training CLI applies it
-    config = TrainConfig.for_env(values.pop("env", "GridMaze-v0"), **values)
-    config.validate()
-    return config
 
 
 def train_networks(spec: str | None, config: TrainConfig) -> list[tuple[int, ...]]:

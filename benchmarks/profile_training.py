@@ -1,11 +1,13 @@
 """Where a training iteration's GPU time goes: device kernels of one logging interval, by kind.
 
-    python -m benchmarks.profile_training [--env RobotNav-v0] [--algo pqn] [--iterations 2]
-        [--repeats 2] [--out benchmarks/results/profile_training.json]
+    python -m benchmarks.profile_training [--env RobotNav-v0] [--algo pqn] [--config JSON]
+        [--iterations 2] [--repeats 2] [--out benchmarks/results/profile_training.json]
 
-The env's preset for the algorithm (``TrainConfig.for_env``) with a logging interval of
-``--iterations`` iterations; ``Trainer.run(state, log, 1)`` is compiled once, run twice untimed,
-then ``--repeats`` times under ``jax.profiler.trace`` (a Perfetto trace). Every device kernel of
+The env's preset for the algorithm (``TrainConfig.for_env``), then ``--config``'s ``TrainConfig``
+fields, with a logging interval of ``--iterations`` iterations; ``Trainer.run(state, log, 1)``
+for the first interval in which the algorithm learns (a DQN waits for ``learning_starts``) is
+compiled once, run twice untimed, then ``--repeats`` times under ``jax.profiler.trace`` (a
+Perfetto trace). Every device kernel of
 the trace is put in one kind by its name (``KINDS``: the Pallas LayerNorm kernels, matrix
 products, reductions, dtype conversions, sorts, gathers and scatters, copies, the rest) and its
 time summed. Reported: the span from the first kernel's start to the last one's end, the
@@ -29,7 +31,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from benchmarks.common import machine_info, write_results
+from benchmarks.common import machine_info, train_config, write_results
 from jaxnav.config import TrainConfig
 from jaxnav.train import Trainer
 
@@ -91,13 +93,13 @@ def summarize(kernels: list[dict[str, Any]]) -> dict[str, Any]:
     }
 
 
-def profile(env: str, algo: str, iterations: int, repeats: int) -> dict[str, Any]:
-    preset = TrainConfig.for_env(env, algo=algo, eval_episodes=0)
-    steps = iterations * preset.steps_per_iteration
-    config = dataclasses.replace(preset, log_interval=steps, total_timesteps=steps * 4)
+def profile(config: TrainConfig, iterations: int, repeats: int) -> dict[str, Any]:
+    steps = iterations * config.steps_per_iteration
+    log = max(1, -(-config.first_learning_iteration // iterations))
+    config = dataclasses.replace(config, log_interval=steps, total_timesteps=steps * (log + 1))
     trainer = Trainer(config)
     state = jax.jit(trainer.init)(jax.random.key(0))
-    interval = jax.jit(lambda ts: trainer.run(ts, jnp.int32(1), 1)[0])
+    interval = jax.jit(lambda ts: trainer.run(ts, jnp.int32(log), 1)[0])
     interval = interval.lower(state).compile()
     for _ in range(2):
         jax.block_until_ready(interval(state))
@@ -108,8 +110,8 @@ def profile(env: str, algo: str, iterations: int, repeats: int) -> dict[str, Any
         path = next(Path(tmp).rglob("perfetto_trace.json.gz"))
         trace = json.loads(gzip.decompress(path.read_bytes()))
     return {
-        "env": env,
-        "algo": algo,
+        "env": config.env,
+        "algo": config.algo,
         "iterations": iterations,
         "repeats": repeats,
         "env_steps_per_repeat": steps,
@@ -135,7 +137,8 @@ def markdown(result: dict[str, Any]) -> str:
         f"{c['updates_per_iteration']} gradient steps of {c['minibatch_size']:,} an iteration, "
         f"network {'-'.join(map(str, c['hidden_sizes']))} in {c['compute_dtype']}).\n",
         f"Span {span / 1e3:.1f} ms, kernels busy {busy / 1e3:.1f} ms ({busy / span:.0%} of the "
-        f"span), {result['kernels']:,} kernels.\n",
+        f"span), {result['kernels']:,} kernels "
+        f"({result['kernels'] / (result['repeats'] * result['iterations']):,.0f} an iteration).\n",
         "| kind | ms | share of kernel time |",
         "|---|---:|---:|",
     ]
@@ -150,9 +153,12 @@ def markdown(result: dict[str, Any]) -> str:
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(
+        prog="python -m benchmarks.profile_training", description=__doc__.splitlines()[0]
+    )
     p.add_argument("--env", default="RobotNav-v0")
     p.add_argument("--algo", default="pqn")
+    p.add_argument("--config", default="{}", help="JSON TrainConfig fields after the preset")
     p.add_argument("--iterations", type=int, default=2, help="iterations per logging interval")
     p.add_argument("--repeats", type=int, default=2, help="intervals traced")
     p.add_argument("--out", type=Path, default=Path("benchmarks/results/profile_training.json"))
@@ -160,7 +166,15 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     if min(args.iterations, args.repeats) < 1:
         p.error("--iterations and --repeats must be >= 1")
     try:
-        result = profile(args.env, args.algo, args.iterations, args.repeats)
+        overrides = json.loads(args.config)
+        if not isinstance(overrides, dict):
+            raise ValueError("must be a JSON object of TrainConfig fields")
+        preset = {"env": args.env, "algo": args.algo, "eval_episodes": 0}
+        config = train_config(json.dumps(preset | overrides))
+    except (ValueError, TypeError) as e:  # JSONDecodeError is a ValueError
+        p.error(f"--config {args.config!r}: {e}")
+    try:
+        result = profile(config, args.iterations, args.repeats)
     except ValueError as e:
         print(f"benchmarks.profile_training: error: {e}", file=sys.stderr)
         raise SystemExit(2) from None

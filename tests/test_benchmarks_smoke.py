@@ -160,6 +160,13 @@ def test_profile_training_sums_device_kernels_by_kind(tmp_path: Path, capsys) ->
     err = capsys.readouterr().err.strip()
     assert exit_info.value.code == 2 and err.count("\n") == 0 and "accelerator" in err, err
     assert not out.exists()
+    # --config: TrainConfig fields after the preset; a bad one is named, exit 2
+    for bad, named in (('{"num_envs": 0}', "num_envs"), ("[1]", "JSON object")):
+        with pytest.raises(SystemExit) as exit_info:
+            pt.main(["--env", "GridMaze-v0", "--config", bad, "--out", str(out)])
+        err = capsys.readouterr().err.strip().splitlines()[-1]
+        assert exit_info.value.code == 2 and "--config" in err and named in err, err
+    assert not out.exists()
 
 
 def test_layer_norm_blocks_times_each_block_against_the_jnp_form() -> None:
