@@ -99,7 +99,8 @@ def profile(config: TrainConfig, iterations: int, repeats: int) -> dict[str, Any
     config = dataclasses.replace(config, log_interval=steps, total_timesteps=steps * (log + 1))
     trainer = Trainer(config)
     state = jax.jit(trainer.init)(jax.random.key(0))
-    interval = jax.jit(lambda ts: trainer.run(ts, jnp.int32(log), 1)[0])
+    # with the interval's metrics, as training computes them (without, XLA drops their work)
+    interval = jax.jit(lambda ts: trainer.run(ts, jnp.int32(log), 1))
     interval = interval.lower(state).compile()
     for _ in range(2):
         jax.block_until_ready(interval(state))
