@@ -328,11 +328,11 @@ class Trainer:
         # fused (so recomputed) the env's collision test, 64 us a step of RobotNav-v0's 8,192
         # envs on an H100; summed over the rollout's stacked rows it reads stored values
         stats = {
-            "episodes": done.astype(jnp.int32),
+            "episodes": done,  # flags: a byte an env a step, counted by the sum
             "return_sum": jnp.where(done, ep_return, 0.0),
             "length_sum": jnp.where(done, ep_length, 0),
-            "successes": (done & info["goal_reached"]).astype(jnp.int32),
-            "collisions": (done & info["collision"]).astype(jnp.int32),
+            "successes": done & info["goal_reached"],
+            "collisions": done & info["collision"],
         }
         ts = ts.replace(
             env_state=env_state,
