@@ -100,13 +100,14 @@ def time_in_turn(rows: list[dict[str, Any]], rounds: int) -> None:
         del row["run"]
 
 
-def train_config(overrides: str) -> TrainConfig:
-    """The training CLI's config for ``overrides``, a JSON object of ``TrainConfig`` fields: the
-    preset of its env (default GridMaze-v0, the paper's grid experiment) and algorithm, then the
-    other fields."""
+def train_config(overrides: str, **defaults: Any) -> TrainConfig:
+    """The training CLI's config for ``overrides``, a JSON object of ``TrainConfig`` fields
+    over ``defaults``: the preset of its env (default GridMaze-v0, the paper's grid experiment)
+    and algorithm, then the other fields."""
     values = json.loads(overrides)
     if not isinstance(values, dict):
         raise ValueError("must be a JSON object of TrainConfig fields")
+    values = defaults | values
     if "hidden_sizes" in values:
         values["hidden_sizes"] = tuple(values["hidden_sizes"])
     # the env's preset for the algorithm first, as the training CLI applies it

@@ -167,11 +167,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     if min(args.iterations, args.repeats) < 1:
         p.error("--iterations and --repeats must be >= 1")
     try:
-        overrides = json.loads(args.config)
-        if not isinstance(overrides, dict):
-            raise ValueError("must be a JSON object of TrainConfig fields")
-        preset = {"env": args.env, "algo": args.algo, "eval_episodes": 0}
-        config = train_config(json.dumps(preset | overrides))
+        config = train_config(args.config, env=args.env, algo=args.algo, eval_episodes=0)
     except (ValueError, TypeError) as e:  # JSONDecodeError is a ValueError
         p.error(f"--config {args.config!r}: {e}")
     try:
