@@ -47,14 +47,17 @@ def test_dueling_head_is_value_plus_centred_advantage():
     net = dqn.QNetwork(NUM_ACTIONS, hidden_sizes=(8, 8), dueling=True)
     obs = jax.random.normal(jax.random.key(0), (5, 3))
     params = jax.jit(net.init)(jax.random.key(1), obs)
-    assert {"value", "advantage"} <= set(params["params"])
+    p = params["params"]
+    assert {"value", "advantage"} <= set(p)
     apply = jax.jit(partial(net.apply, capture_intermediates=True, mutable=["intermediates"]))
     q, captured = apply(params, obs)
     chex.assert_shape(q, (5, NUM_ACTIONS))
-    v = captured["intermediates"]["value"]["__call__"][0]
-    a = captured["intermediates"]["advantage"]["__call__"][0]
+    # the heads read the last hidden layer's ReLU; V and A as two separate products
+    features = np.maximum(np.asarray(captured["intermediates"]["Dense_1"]["__call__"][0]), 0.0)
+    v = features @ np.asarray(p["value"]["kernel"]) + np.asarray(p["value"]["bias"])
+    a = features @ np.asarray(p["advantage"]["kernel"]) + np.asarray(p["advantage"]["bias"])
     chex.assert_shape(v, (5, 1))
-    np.testing.assert_allclose(q, v + a - a.mean(-1, keepdims=True), rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(q, v + a - a.mean(-1, keepdims=True), rtol=1e-5, atol=1e-6)
     np.testing.assert_allclose(q.mean(-1), v[:, 0], rtol=1e-5, atol=1e-6)
 
 

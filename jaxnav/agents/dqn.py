@@ -142,21 +142,17 @@ class QNetwork(nn.Module):
         x = x.astype(jnp.float32)  # the heads in float32: Q-values are compared and regressed
         if not self.dueling:
             return nn.Dense(self.num_actions, name=f"Dense_{len(self.hidden_sizes)}")(x)
-        if fused:
-            # eq. 7 is linear in x: one product with the combined weights, where two products
-            # and a mean ran as many small kernels forward and backward (the same function)
-            value_kernel, value_bias = DenseParams(1, name="value")(x.shape[-1])
-            kernel, bias = DenseParams(self.num_actions, name="advantage")(x.shape[-1])
-            # the mean over actions as a sum of columns: elementwise, so XLA fuses it with
-            # the rest (a mean over the last axis ran as a kernel of its own)
-            columns = range(self.num_actions)
-            kernel_mean = sum(kernel[:, a : a + 1] for a in columns) / self.num_actions
-            bias_mean = sum(bias[a] for a in columns) / self.num_actions
-            return jnp.dot(x, value_kernel + kernel - kernel_mean) + (value_bias + bias - bias_mean)
-        value = nn.Dense(1, name="value")(x)
-        advantage = nn.Dense(self.num_actions, name="advantage")(x)
-        # eq. 7: Q = V + (A - mean_a A), which makes V and A identifiable
-        return value + advantage - advantage.mean(axis=-1, keepdims=True)
+        # eq. 7, Q = V + (A - mean_a A), which makes V and A identifiable, is linear in x: one
+        # product with the combined weights, where two products and a mean ran as many small
+        # kernels forward and backward (the same function; the same parameters as two nn.Dense)
+        value_kernel, value_bias = DenseParams(1, name="value")(x.shape[-1])
+        kernel, bias = DenseParams(self.num_actions, name="advantage")(x.shape[-1])
+        # the mean over actions as a sum of columns: elementwise, so XLA fuses it with the
+        # rest (a mean over the last axis ran as a kernel of its own)
+        columns = range(self.num_actions)
+        kernel_mean = sum(kernel[:, a : a + 1] for a in columns) / self.num_actions
+        bias_mean = sum(bias[a] for a in columns) / self.num_actions
+        return jnp.dot(x, value_kernel + kernel - kernel_mean) + (value_bias + bias - bias_mean)
 
 
 # ---------------------------------------------------------------------------- replay
