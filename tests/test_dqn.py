@@ -57,7 +57,7 @@ def test_dueling_head_is_value_plus_centred_advantage():
     v = features @ np.asarray(p["value"]["kernel"]) + np.asarray(p["value"]["bias"])
     a = features @ np.asarray(p["advantage"]["kernel"]) + np.asarray(p["advantage"]["bias"])
     chex.assert_shape(v, (5, 1))
-    np.testing.assert_allclose(q, v + a - a.mean(-1, keepdims=True), rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(q, v + a - a.mean(-1, keepdims=True), rtol=1e-6, atol=1e-6)
     np.testing.assert_allclose(q.mean(-1), v[:, 0], rtol=1e-5, atol=1e-6)
 
 
