@@ -1,12 +1,13 @@
 """The fused LayerNorm's Pallas kernels by block size, against XLA's fusion of the same math.
 
     python -m benchmarks.layer_norm_blocks [--rows 16384] [--widths 1024,512,256]
-        [--rows-per-block 4,8,16,32] [--warps 4,8,16] [--chain 20]
+        [--rows-per-block 4,8,16,32] [--warps 4,8,16] [--walks 1] [--chain 20]
         [--out benchmarks/results/layer_norm_blocks.json]
 
 For each row width, ``agents.layer_norm``'s forward and backward (``z``'s gradient and the
 three parameter gradients' column sums) in bfloat16, as a GPU training step runs them, with
-every (rows, warps) of one kernel instance, and the jnp form (``pallas=False``: what XLA
+every (rows, warps) of one kernel instance (the backward's instance walking each of
+``--walks`` such blocks in turn), and the jnp form (``pallas=False``: what XLA
 fuses of the same functions) as the baseline. One program chains ``--chain`` calls (each
 call's output the next one's input) so launches overlap as in training; reported: the time
 per call, the baseline's time over it, and compile time apart. The blocks ``layer_norm``
@@ -52,8 +53,15 @@ def seconds_per_call(op: Callable[[jax.Array], tuple], x: jax.Array, chain: int)
     return min(program() for _ in range(REPEATS)) / chain, compile_s
 
 
-def measure(rows: int, width: int, blocks: list[tuple[int, int]], chain: int) -> list[dict]:
-    """One width: the jnp form, then the kernels with each block, forward and backward."""
+def measure(
+    rows: int,
+    width: int,
+    blocks: list[tuple[int, int]],
+    chain: int,
+    walks: tuple[int, ...] = (1,),
+) -> list[dict]:
+    """One width: the jnp form, then the kernels with each block (rows, warps), forward and
+    backward, the backward with each number of blocks an instance walks (``walks``)."""
     k_z, k_g = jax.random.split(jax.random.key(width))
     z = jax.random.normal(k_z, (rows, width), jnp.bfloat16)
     grad = jax.random.normal(k_g, (rows, width), jnp.bfloat16)
@@ -71,25 +79,30 @@ def measure(rows: int, width: int, blocks: list[tuple[int, int]], chain: int) ->
 
         return op
 
+    # the backward's entries add the blocks an instance walks
+    walked = [(*block, walk) for block in blocks for walk in walks]
     directions = {
-        "forward": (forward, layer_norm.FORWARD_BLOCKS, z),
-        "backward": (backward, layer_norm.BACKWARD_BLOCKS, grad),
+        "forward": (forward, layer_norm.FORWARD_BLOCKS, z, blocks),
+        "backward": (backward, layer_norm.BACKWARD_BLOCKS, grad, walked),
     }
     out = []
-    for direction, (op, table, x) in directions.items():
+    for direction, (op, table, x, entries) in directions.items():
         chosen = table[width]
         base_s, base_compile = seconds_per_call(op(False), x, chain)
         out.append(row(direction, width, "jnp (XLA)", base_s, base_s, base_compile, False))
-        for block in blocks:
-            if rows % block[0]:
+        for entry in entries:
+            instance_rows = entry[0] * (entry[2] if len(entry) > 2 else 1)
+            if rows % instance_rows:
                 continue
-            table[width] = block  # read when the kernels are traced
+            table[width] = entry  # read when the kernels are traced
             try:
                 s, compile_s = seconds_per_call(op(True), x, chain)
             finally:
                 table[width] = chosen
-            label = f"{block[0]} rows, {block[1]} warps"
-            out.append(row(direction, width, label, s, base_s, compile_s, block == chosen))
+            label = f"{entry[0]} rows, {entry[1]} warps"
+            if len(entry) > 2 and entry[2] > 1:
+                label += f", {entry[2]} blocks an instance"
+            out.append(row(direction, width, label, s, base_s, compile_s, entry == chosen))
     return out
 
 
@@ -143,6 +156,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--widths", type=int_list, default=[1024, 512, 256])
     p.add_argument("--rows-per-block", type=int_list, default=[4, 8, 16, 32])
     p.add_argument("--warps", type=int_list, default=[4, 8, 16])
+    p.add_argument(
+        "--walks", type=int_list, default=[1], help="row blocks a backward instance walks"
+    )
     p.add_argument("--chain", type=int, default=20, help="calls chained in one program")
     p.add_argument("--out", type=Path, default=Path("benchmarks/results/layer_norm_blocks.json"))
     args = p.parse_args(argv)
@@ -163,7 +179,11 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "command": "python -m benchmarks.layer_norm_blocks " + " ".join(argv or sys.argv[1:]),
         "rows": args.rows,
         "chain": args.chain,
-        "measurements": [r for w in args.widths for r in measure(args.rows, w, blocks, args.chain)],
+        "measurements": [
+            r
+            for w in args.widths
+            for r in measure(args.rows, w, blocks, args.chain, tuple(args.walks))
+        ],
     }
     write_results(args.out, result, markdown(result))
     print(markdown(result))

@@ -175,11 +175,21 @@ def test_layer_norm_blocks_times_each_block_against_the_jnp_form() -> None:
 
     before = dict(layer_norm.BACKWARD_BLOCKS)
     chosen = layer_norm.BACKWARD_BLOCKS[128]
-    rows = lnb.measure(32, 128, [(8, 4), (32, 4), (64, 4)], chain=2)  # 64 rows: does not fit
+    # 64 rows, or 32 walked twice: more than the 32 there are, so not measured
+    rows = lnb.measure(32, 128, [(8, 4), (32, 4), (64, 4)], chain=2, walks=(1, 2))
     assert layer_norm.BACKWARD_BLOCKS == before  # the table is restored
     backward = [r for r in rows if r["direction"] == "backward"]
-    assert [r["form"] for r in backward] == ["jnp (XLA)", "8 rows, 4 warps", "32 rows, 4 warps"]
-    assert [r["chosen"] for r in backward] == [False, (8, 4) == chosen, (32, 4) == chosen]
+    assert [r["form"] for r in backward] == [
+        "jnp (XLA)",
+        "8 rows, 4 warps",
+        "8 rows, 4 warps, 2 blocks an instance",
+        "32 rows, 4 warps",
+    ]
+    assert [r["chosen"] for r in backward] == [
+        False, (8, 4, 1) == chosen, (8, 4, 2) == chosen, (32, 4, 1) == chosen
+    ]  # fmt: skip
+    forward = [r["form"] for r in rows if r["direction"] == "forward"]
+    assert forward == ["jnp (XLA)", "8 rows, 4 warps", "32 rows, 4 warps"]
     assert backward[0]["jnp_over_this"] == 1.0
     assert all(r["us_per_call"] > 0 and r["compile_s"] > 0 for r in rows)
     assert "| backward | 128 | **32 rows, 4 warps** |" in lnb.markdown(

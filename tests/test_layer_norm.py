@@ -15,7 +15,7 @@ from conftest import TINY_TRAIN
 from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
-from jaxnav.agents import dqn
+from jaxnav.agents import dqn, layer_norm
 from jaxnav.agents.layer_norm import kernel_fits, layer_norm_relu
 from jaxnav.train import Trainer
 
@@ -58,8 +58,13 @@ def assert_computes_flax_layer_norm_relu(fn, args, cotangent):
         np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-5 * np.abs(want).max())
 
 
-@pytest.mark.parametrize("pallas", [False, True], ids=["jnp", "pallas"])
-def test_fused_op_is_flax_layer_norm_then_relu_with_its_gradient(pallas):
+@pytest.mark.parametrize(
+    "pallas, walk", [(False, 1), (True, 1), (True, 2)], ids=["jnp", "pallas", "pallas-walking"]
+)
+def test_fused_op_is_flax_layer_norm_then_relu_with_its_gradient(pallas, walk, monkeypatch):
+    """``walk``: each backward kernel instance walks that many blocks of 8 rows (the column
+    sums of all of them added up before they are written)."""
+    monkeypatch.setitem(layer_norm.BACKWARD_BLOCKS, WIDTH, (8, 4, walk))
     args, cotangent = inputs()
     fused = lambda *a: layer_norm_relu(*a, pallas=pallas)  # noqa: E731
     assert kernel_fits(ROWS, WIDTH) and uses_kernel(fused, args) == pallas

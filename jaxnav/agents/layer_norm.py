@@ -43,19 +43,21 @@ KERNEL_WIDTHS = tuple(2**k for k in range(7, 12))  # 128 .. 2048
 # H100 at 16,384 rows from each kernel timed alone, then the 1024-512-256 preset trained with a
 # few (1024 backward at 8x4, 8x8 and 16x16, larger blocks at 256 and 512, smaller forward ones:
 # all within 1%). At 1024 the backward's 16-row blocks spill: 80 us a call with 8 rows x 4
-# warps, 85 with 16 x 8, 178 with 16 x 4 (``benchmarks/results/layer_norm_blocks_h100.md``).
-# That table ranks two others first (forward at 256: 16 x 8; backward at 512: 16 x 4); in
-# training they changed nothing measurable. 128 and 2048 follow the pattern, unmeasured. A
-# backward instance walking 2 to 16 blocks (fewer column sums to reduce) was slower beyond 2
-# with 16-row blocks; with 8-row blocks, walking 2 or 4 (1 or 2 pipeline stages) trained
-# within run-to-run noise of one block.
+# warps, 85 with 16 x 8, 178 with 16 x 4
+# (``benchmarks/results/archive/layer_norm_blocks_h100_one_block_an_instance.md``). 128 and
+# 2048 follow the pattern, unmeasured. A backward instance walks several blocks in turn at 512
+# (2 of 8 rows) and 1024 (4 of 4), so that fewer column sums are written and reduced: the
+# preset trained 1.5% faster in two alternating rounds (README, "Training-loop throughput");
+# timed alone the kernels vary by a tenth from run to run at these sizes
+# (``benchmarks/results/layer_norm_blocks_h100.md``, ``--walks``).
 FORWARD_BLOCKS: dict[int, tuple[int, int]] = dict.fromkeys(KERNEL_WIDTHS, (8, 4))
-BACKWARD_BLOCKS: dict[int, tuple[int, int]] = {
-    128: (32, 4),
-    256: (32, 4),
-    512: (8, 4),
-    1024: (8, 4),
-    2048: (4, 4),
+# backward: (rows, warps, blocks an instance walks)
+BACKWARD_BLOCKS: dict[int, tuple[int, int, int]] = {
+    128: (32, 4, 1),
+    256: (32, 4, 1),
+    512: (8, 4, 2),
+    1024: (4, 4, 4),
+    2048: (4, 4, 1),
 }
 
 
@@ -63,7 +65,8 @@ def kernel_fits(rows: int, width: int) -> bool:
     """Whether the Pallas kernels take ``rows`` x ``width`` (else the jnp form runs)."""
     if width not in KERNEL_WIDTHS:
         return False
-    block = max(FORWARD_BLOCKS[width][0], BACKWARD_BLOCKS[width][0])
+    rows_per_block, _, walk = BACKWARD_BLOCKS[width]
+    block = max(FORWARD_BLOCKS[width][0], rows_per_block * walk)
     return rows > 0 and rows % block == 0
 
 
@@ -151,15 +154,26 @@ def _forward_kernel(z_ref, dense_bias_ref, scale_ref, bias_ref, out_ref, mean_re
 
 
 def _backward_kernel(
-    grad_ref, z_ref, dense_bias_ref, scale_ref, bias_ref, mean_ref, rstd_ref, dz_ref, sums_ref
-):
-    """``sums_ref``: 4 rows, this block's column sums of the three parameter gradients (the
-    4th row, there for Triton's power-of-two blocks, is not written)."""
-    inputs = (grad_ref, z_ref, dense_bias_ref, scale_ref, bias_ref, mean_ref, rstd_ref)
-    dz, per_row = _backward_math(*(ref[...] for ref in inputs))
-    dz_ref[...] = dz.astype(dz_ref.dtype)
-    for i, g in enumerate(per_row):
-        sums_ref[pl.ds(i, 1), :] = jnp.sum(g, axis=0)[None, :]
+    walk: int,
+    grad_ref, z_ref, dense_bias_ref, scale_ref, bias_ref, mean_ref, rstd_ref, dz_ref, sums_ref,
+):  # fmt: skip
+    """One instance: ``walk`` blocks of rows in turn (unrolled), their column sums of the three
+    parameter gradients added up in registers and written once to ``sums_ref`` (4 rows, the
+    4th there for Triton's power-of-two blocks and not written): fewer partial sums to write
+    and to reduce after."""
+    block = z_ref.shape[0] // walk
+    params = (dense_bias_ref[...], scale_ref[...], bias_ref[...])
+    total = None
+    for j in range(walk):
+        rows = pl.ds(j * block, block)
+        dz, per_row = _backward_math(
+            grad_ref[rows, :], z_ref[rows, :], *params, mean_ref[rows], rstd_ref[rows]
+        )
+        dz_ref[rows, :] = dz.astype(dz_ref.dtype)
+        sums = [jnp.sum(g, axis=0) for g in per_row]
+        total = sums if total is None else [t + s for t, s in zip(total, sums, strict=True)]
+    for i, t in enumerate(total):
+        sums_ref[pl.ds(i, 1), :] = t[None, :]
 
 
 def _rows_spec(block: int, width: int) -> pl.BlockSpec:
@@ -211,11 +225,12 @@ def _forward_pallas(z, dense_bias, scale, bias):
 
 def _backward_pallas(grad, z, dense_bias, scale, bias, mean, rstd):
     rows, width = z.shape
-    block = BACKWARD_BLOCKS[width][0]
+    rows_per_block, warps, walk = BACKWARD_BLOCKS[width]
+    block = rows_per_block * walk  # an instance's rows
     blocks = rows // block
     dz, sums = _call(
-        _backward_kernel,
-        BACKWARD_BLOCKS[width],
+        functools.partial(_backward_kernel, walk),
+        (block, warps),
         (
             jax.ShapeDtypeStruct(z.shape, z.dtype),
             jax.ShapeDtypeStruct((blocks * 4, width), jnp.float32),
