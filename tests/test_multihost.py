@@ -46,19 +46,10 @@ def _same_run(a: Path, b: Path) -> None:
     jax.tree.map(np.testing.assert_array_equal, pa, pb)
 
 
-def test_two_processes_train_as_one_process_with_two_devices(tmp_path):
-    steps = ["--total-timesteps", "128", "--checkpoint-every", "64"]
-    assert train_main([*FLAGS, *steps, "--out", str(tmp_path / "one")]) == 0
-    results = _wait(_launch([*FLAGS, *steps, "--out", str(tmp_path / "two")]))
-    assert [code for code, _, _ in results] == [0, 0], results
-    (_, out0, _), (_, out1, _) = results
-    assert "run saved to" in out0  # process 0 reports and writes, alone
-    assert "training GridMaze" not in out1 and "saved" not in out1, out1
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["one", "two"]
-    _same_run(tmp_path / "one", tmp_path / "two")
-
-
-def test_two_processes_stop_together_and_resume(tmp_path):
+def test_two_processes_stop_together_resume_and_train_as_one_process_with_two_devices(tmp_path):
+    """Stopped on one host, both stop; resumed, process 0 alone reports and writes one run
+    directory, the same as one process with two devices (bitwise). A run that is never
+    stopped is ``benchmarks.multiprocess``'s (its smoke test)."""
     steps = ["--total-timesteps", "1920", "--checkpoint-every", "320"]
     assert train_main([*FLAGS, *steps, "--out", str(tmp_path / "one")]) == 0
     out = tmp_path / "two"
@@ -74,5 +65,8 @@ def test_two_processes_stop_together_and_resume(tmp_path):
     assert f"--resume {out}" in results[0][2]
     results = _wait(_launch(["--quiet", *FLAGS[-2:], "--resume", str(out)]))
     assert [code for code, _, _ in results] == [0, 0], results
-    assert "resumed from the checkpoint" in results[0][1]
+    (_, out0, _), (_, out1, _) = results
+    assert "resumed from the checkpoint" in out0 and "run saved to" in out0
+    assert "resumed" not in out1 and "saved" not in out1, out1  # process 0 reports, alone
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["one", "two"]  # one run directory
     _same_run(tmp_path / "one", out)
