@@ -47,7 +47,7 @@ KERNEL_WIDTHS = tuple(2**k for k in range(7, 12))  # 128 .. 2048
 # (``benchmarks/results/archive/layer_norm_blocks_h100_one_block_an_instance.md``). 128 and
 # 2048 follow the pattern, unmeasured. A backward instance walks several blocks in turn at 512
 # (2 of 8 rows) and 1024 (4 of 4), so that fewer column sums are written and reduced: the
-# preset trained 1.5% faster in two alternating rounds (README, "Training-loop throughput");
+# preset trains at 6.75M env steps/s against 6.59M (README, "Training-loop throughput");
 # timed alone the kernels vary by a tenth from run to run at these sizes
 # (``benchmarks/results/layer_norm_blocks_h100.md``, ``--walks``).
 FORWARD_BLOCKS: dict[int, tuple[int, int]] = dict.fromkeys(KERNEL_WIDTHS, (8, 4))
