@@ -91,8 +91,8 @@ def measure(
         base_s, base_compile = seconds_per_call(op(False), x, chain)
         out.append(row(direction, width, "jnp (XLA)", base_s, base_s, base_compile, False))
         for entry in entries:
-            instance_rows = entry[0] * (entry[2] if len(entry) > 2 else 1)
-            if rows % instance_rows:
+            walk = entry[2] if len(entry) > 2 else 1  # forward entries: (rows, warps)
+            if rows % (entry[0] * walk):
                 continue
             table[width] = entry  # read when the kernels are traced
             try:
@@ -100,8 +100,8 @@ def measure(
             finally:
                 table[width] = chosen
             label = f"{entry[0]} rows, {entry[1]} warps"
-            if len(entry) > 2 and entry[2] > 1:
-                label += f", {entry[2]} blocks an instance"
+            if walk > 1:
+                label += f", {walk} blocks an instance"
             out.append(row(direction, width, label, s, base_s, compile_s, entry == chosen))
     return out
 

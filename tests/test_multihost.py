@@ -68,5 +68,6 @@ def test_two_processes_stop_together_resume_and_train_as_one_process_with_two_de
     (_, out0, _), (_, out1, _) = results
     assert "resumed from the checkpoint" in out0 and "run saved to" in out0
     assert "resumed" not in out1 and "saved" not in out1, out1  # process 0 reports, alone
+    assert "training GridMaze" not in out1, out1
     assert sorted(p.name for p in tmp_path.iterdir()) == ["one", "two"]  # one run directory
     _same_run(tmp_path / "one", out)
