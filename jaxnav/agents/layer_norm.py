@@ -45,16 +45,18 @@ KERNEL_WIDTHS = tuple(2**k for k in range(7, 12))  # 128 .. 2048
 # all within 1%). At 1024 the backward's 16-row blocks spill: 80 us a call with 8 rows x 4
 # warps, 85 with 16 x 8, 178 with 16 x 4
 # (``benchmarks/results/archive/layer_norm_blocks_h100_one_block_an_instance.md``). 128 and
-# 2048 follow the pattern, unmeasured. A backward instance walks several blocks in turn at 512
-# (2 of 8 rows) and 1024 (4 of 4), so that fewer column sums are written and reduced: the
-# preset trains at 6.75M env steps/s against 6.59M (README, "Training-loop throughput");
-# timed alone the kernels vary by a tenth from run to run at these sizes
-# (``benchmarks/results/layer_norm_blocks_h100.md``, ``--walks``).
+# 2048 follow the pattern, unmeasured. A backward instance walks several blocks in turn at 256
+# (2 of 32 rows, 8 warps), 512 (2 of 8 rows) and 1024 (4 of 4), so that fewer column sums are
+# written and reduced: at 512 and 1024 the preset trained at 6.75M env steps/s against 6.59M
+# (README, "Training-loop throughput"); the 256 entry, the one the kernel table ranks first
+# at 256 (``benchmarks/results/layer_norm_blocks_h100.md``, ``--walks``), came with the PQN's
+# unrolled minibatch loop. Timed alone the kernels vary by a tenth from run to run at these
+# sizes.
 FORWARD_BLOCKS: dict[int, tuple[int, int]] = dict.fromkeys(KERNEL_WIDTHS, (8, 4))
 # backward: (rows, warps, blocks an instance walks)
 BACKWARD_BLOCKS: dict[int, tuple[int, int, int]] = {
     128: (32, 4, 1),
-    256: (32, 4, 1),
+    256: (32, 8, 2),
     512: (8, 4, 2),
     1024: (4, 4, 4),
     2048: (4, 4, 1),
