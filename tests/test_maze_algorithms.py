@@ -1,8 +1,10 @@
-"""The maze algorithms both envs share: regions numbered in reading order, pockets filled with
-either tie rule, the largest region's first cell, the integer checks."""
+"""The maze algorithms both envs share: a bank's BFS distance tables, regions numbered in
+reading order, pockets filled with either tie rule, the largest region's first cell, the
+integer checks."""
 
 from __future__ import annotations
 
+import jax.numpy as jnp
 import numpy as np
 import pytest
 from conftest import bfs_distances
@@ -14,6 +16,31 @@ from jaxnav.envs import maze_algorithms as A
 
 def grid(text: str) -> np.ndarray:
     return np.array([[ch == "#" for ch in row] for row in text.split()])
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    walls=st.lists(st.booleans(), min_size=2 * 7 * 7, max_size=2 * 7 * 7),
+    sources=st.lists(st.integers(0, 7 * 7 - 1), min_size=2 * 40, max_size=2 * 40),
+)
+def test_bank_distances_are_each_sources_bfs(walls, sources):
+    # 40 sources a maze: two words of bits; repeats and sources on walls come up too
+    walls = np.array(walls).reshape(2, 7, 7)
+    cells = np.stack(np.divmod(np.array(sources).reshape(2, 40), 7), axis=-1).astype(np.int32)
+    got = np.asarray(A.bank_distances(jnp.asarray(walls), jnp.asarray(cells)))
+    assert got.shape == (2, 40, 7, 7) and got.dtype == np.int16
+    for b in range(2):
+        for g in range(40):
+            np.testing.assert_array_equal(got[b, g], bfs_distances(walls[b], tuple(cells[b, g])))
+
+
+@pytest.mark.parametrize("length", [8, 9])
+def test_bank_distances_count_to_the_longest_path(length):
+    # a corridor's far end is length - 1 steps away: 7 fills 3 bits of count, 8 needs a 4th
+    corridor = np.zeros((1, 1, length), bool)
+    got = A.bank_distances(jnp.asarray(corridor), jnp.array([[[0, 0], [0, length - 1]]]))
+    np.testing.assert_array_equal(got[0, 0, 0], np.arange(length))
+    np.testing.assert_array_equal(got[0, 1, 0], np.arange(length)[::-1])
 
 
 # two regions of 3 cells: the left column starts first, the top row ends first

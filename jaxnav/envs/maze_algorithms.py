@@ -112,12 +112,52 @@ def shortest_path_length(walls: jax.Array, start: jax.Array, goal: jax.Array) ->
     return distance_field(walls, goal)[start[0], start[1]]
 
 
+def _neighbours_or(bits: jax.Array) -> jax.Array:
+    """Each cell's bits OR-ed with its four neighbours' (the last two axes; none off the grid)."""
+    p = jnp.pad(bits, [(0, 0)] * (bits.ndim - 2) + [(1, 1), (1, 1)])
+    return bits | p[..., :-2, 1:-1] | p[..., 2:, 1:-1] | p[..., 1:-1, :-2] | p[..., 1:-1, 2:]
+
+
 @jax.jit
 def bank_distances(walls: jax.Array, sources: jax.Array) -> jax.Array:
     """int16[B, G, h, w] BFS steps from each of ``sources[B, G, 2]`` (row, col) in its maze
-    ``walls[B, h, w]``; -1 at walls and unreachable cells."""
-    per_maze = jax.vmap(distance_field, in_axes=(None, 0))
-    return jax.vmap(per_maze)(walls, sources).astype(jnp.int16)
+    ``walls[B, h, w]``; -1 at walls and unreachable cells, everywhere for a source on a wall.
+
+    The G searches of a maze run together, one bit each of uint32 words: a step ORs every
+    cell's reached bits with its neighbours'. A cell's distance from a source counts the steps
+    its bit was still clear, in bit-sliced counters (plane p holds bit p of every count), so a
+    step costs a few word operations a cell rather than G distance updates (for RobotNav-v0's
+    2,048 mazes x 32 goals, several times faster than ``distance_field`` per source)."""
+    num, height, width = walls.shape
+    num_sources = sources.shape[1]
+    k = jnp.arange(num_sources)
+    word, bit = k // 32, jnp.left_shift(jnp.uint32(1), (k % 32).astype(jnp.uint32))
+    free = jnp.where(walls, jnp.uint32(0), jnp.uint32(0xFFFFFFFF))[:, None]  # [B, 1, h, w]
+    seed = jnp.zeros((num, -(-num_sources // 32), height, width), jnp.uint32)
+    # distinct bits of one word: adding them is OR-ing them, repeated sources included
+    seed = seed.at[jnp.arange(num)[:, None], word, sources[..., 0], sources[..., 1]].add(bit)
+    planes = (height * width - 1).bit_length()  # counts up to the longest possible path
+
+    def step(carry):
+        reached, counts, _ = carry
+        clear, summed = ~reached, []
+        for plane in counts:  # add 1 to the count of every bit still clear
+            summed.append(plane ^ clear)
+            clear = plane & clear
+        grown = _neighbours_or(reached) & free
+        return grown, tuple(summed), jnp.any(grown != reached)
+
+    reached = seed & free
+    zeros = tuple(jnp.zeros_like(reached) for _ in range(planes))
+    reached, counts, _ = jax.lax.while_loop(
+        lambda c: c[2], step, (reached, zeros, jnp.asarray(True))
+    )
+
+    def source_bits(x: jax.Array) -> jax.Array:  # [B, words, h, w] -> 0/1 [B, G, h, w]
+        return (x[:, word] >> (k % 32).astype(jnp.uint32)[:, None, None]) & 1
+
+    dist = sum(source_bits(c).astype(jnp.int32) << p for p, c in enumerate(counts))
+    return jnp.where(source_bits(reached) == 1, dist, UNREACHABLE).astype(jnp.int16)
 
 
 # ----------------------------------------------------------------------- regions
