@@ -299,25 +299,20 @@ class Maze:
 def _merge_runs(grid: np.ndarray) -> np.ndarray:
     """Rectangles (r0, c0, r1, c1): maximal runs of True per row, a run extended downwards
     while the next row has the identical run."""
+    rows = grid.shape[0]
+    runs: list[list[tuple[int, int]]] = [[] for _ in range(rows + 1)]  # the last row: none
+    # every row's run edges in one pass; in reading order a run's start and end are neighbours
+    edge_rows, edge_cols = np.nonzero(np.diff(np.pad(grid, ((0, 0), (1, 1))).astype(np.int8)))
+    starts, ends = edge_cols[::2].tolist(), edge_cols[1::2].tolist()
+    for r, c0, c1 in zip(edge_rows[::2].tolist(), starts, ends, strict=True):
+        runs[r].append((c0, c1 - 1))
     boxes: list[tuple[int, int, int, int]] = []
     open_runs: dict[tuple[int, int], int] = {}  # (c0, c1) -> first row
-    rows = grid.shape[0]
-    for r in range(rows + 1):
-        runs = _runs(grid[r]) if r < rows else []
-        still_open = {}
-        for run in runs:
-            still_open[run] = open_runs.pop(run, r)
-        for (c0, c1), r0 in open_runs.items():
-            boxes.append((r0, c0, r - 1, c1))
+    for r, row_runs in enumerate(runs):
+        still_open = {run: open_runs.pop(run, r) for run in row_runs}
+        boxes.extend((r0, c0, r - 1, c1) for (c0, c1), r0 in open_runs.items())
         open_runs = still_open
     return np.array(boxes, dtype=np.int32).reshape(-1, 4)
-
-
-def _runs(row: np.ndarray) -> list[tuple[int, int]]:
-    """Maximal runs of True in a 1-D bool array as inclusive (start, end)."""
-    padded = np.concatenate([[False], row, [False]]).astype(np.int8)
-    edges = np.flatnonzero(np.diff(padded))
-    return [(int(a), int(b) - 1) for a, b in zip(edges[::2], edges[1::2], strict=True)]
 
 
 def check_slots(maze: Maze, num_slots: int) -> None:
