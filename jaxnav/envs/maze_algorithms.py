@@ -131,7 +131,8 @@ def bank_distances(walls: jax.Array, sources: jax.Array) -> jax.Array:
     num, height, width = walls.shape
     num_sources = sources.shape[1]
     k = jnp.arange(num_sources)
-    word, bit = k // 32, jnp.left_shift(jnp.uint32(1), (k % 32).astype(jnp.uint32))
+    word, shift = k // 32, (k % 32).astype(jnp.uint32)  # source k is this bit of this word
+    bit = jnp.left_shift(jnp.uint32(1), shift)
     free = jnp.where(walls, jnp.uint32(0), jnp.uint32(0xFFFFFFFF))[:, None]  # [B, 1, h, w]
     seed = jnp.zeros((num, -(-num_sources // 32), height, width), jnp.uint32)
     # distinct bits of one word: adding them is OR-ing them, repeated sources included
@@ -154,7 +155,7 @@ def bank_distances(walls: jax.Array, sources: jax.Array) -> jax.Array:
     )
 
     def source_bits(x: jax.Array) -> jax.Array:  # [B, words, h, w] -> 0/1 [B, G, h, w]
-        return (x[:, word] >> (k % 32).astype(jnp.uint32)[:, None, None]) & 1
+        return (x[:, word] >> shift[:, None, None]) & 1
 
     dist = sum(source_bits(c).astype(jnp.int32) << p for p, c in enumerate(counts))
     return jnp.where(source_bits(reached) == 1, dist, UNREACHABLE).astype(jnp.int16)
