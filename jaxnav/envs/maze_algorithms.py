@@ -10,6 +10,7 @@ free cells are neighbours when they share a side (4-connectivity).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from typing import Any
 
@@ -86,6 +87,13 @@ def first_blocked_cell(walls: np.ndarray, layout: Any, cells: Any) -> tuple[int,
 
 
 # ----------------------------------------------------------------------- distance fields
+def _neighbours(x: jax.Array, fill: int) -> tuple[jax.Array, ...]:
+    """Each cell's four neighbours (the last two axes), above, below, left and right; ``fill``
+    beyond the grid's edge."""
+    p = jnp.pad(x, [(0, 0)] * (x.ndim - 2) + [(1, 1), (1, 1)], constant_values=fill)
+    return p[..., :-2, 1:-1], p[..., 2:, 1:-1], p[..., 1:-1, :-2], p[..., 1:-1, 2:]
+
+
 def distance_field(walls: jax.Array, source: jax.Array) -> jax.Array:
     """BFS steps from ``source`` (row, col) to every cell; -1 for walls and unreachable."""
     h, w = walls.shape
@@ -96,10 +104,8 @@ def distance_field(walls: jax.Array, source: jax.Array) -> jax.Array:
 
     def relax(carry):
         d, _ = carry
-        p = jnp.pad(d, 1, constant_values=far)
-        nb = jnp.minimum(
-            jnp.minimum(p[:-2, 1:-1], p[2:, 1:-1]), jnp.minimum(p[1:-1, :-2], p[1:-1, 2:])
-        )
+        up, down, left, right = _neighbours(d, far)
+        nb = jnp.minimum(jnp.minimum(up, down), jnp.minimum(left, right))
         new = jnp.where(free, jnp.minimum(d, nb + 1), far)
         return new, jnp.any(new != d)
 
@@ -110,12 +116,6 @@ def distance_field(walls: jax.Array, source: jax.Array) -> jax.Array:
 def shortest_path_length(walls: jax.Array, start: jax.Array, goal: jax.Array) -> jax.Array:
     """BFS length of the shortest path from ``start`` to ``goal``; -1 if there is none."""
     return distance_field(walls, goal)[start[0], start[1]]
-
-
-def _neighbours_or(bits: jax.Array) -> jax.Array:
-    """Each cell's bits OR-ed with its four neighbours' (the last two axes; none off the grid)."""
-    p = jnp.pad(bits, [(0, 0)] * (bits.ndim - 2) + [(1, 1), (1, 1)])
-    return bits | p[..., :-2, 1:-1] | p[..., 2:, 1:-1] | p[..., 1:-1, :-2] | p[..., 1:-1, 2:]
 
 
 @jax.jit
@@ -145,7 +145,7 @@ def bank_distances(walls: jax.Array, sources: jax.Array) -> jax.Array:
         for plane in counts:  # add 1 to the count of every bit still clear
             summed.append(plane ^ clear)
             clear = plane & clear
-        grown = _neighbours_or(reached) & free
+        grown = functools.reduce(jnp.bitwise_or, _neighbours(reached, 0), reached) & free
         return grown, tuple(summed), jnp.any(grown != reached)
 
     reached = seed & free
