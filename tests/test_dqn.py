@@ -166,6 +166,33 @@ def test_td_loss_gradient_flows_only_through_online_q():
         assert any(float(jnp.abs(x).max()) > 0.0 for x in jax.tree.leaves(g))
 
 
+@pytest.mark.parametrize("loss_type", ["huber", "mse"])
+def test_regression_loss_and_its_gradient_match_numpy(loss_type):
+    """The loss reads only each sample's taken action; its gradient is the loss's derivative
+    there over the batch size, zero at every other action; diagnostics as logged."""
+    rng = np.random.default_rng(0)
+    q = rng.normal(0.0, 2.0, (256, NUM_ACTIONS)).astype(np.float32)
+    action = rng.integers(0, NUM_ACTIONS, 256)
+    target = rng.normal(0.0, 2.0, 256).astype(np.float32)
+    identity = lambda params, obs: params  # noqa: E731  the "network" returns its Q-values
+
+    def loss(q):
+        return dqn.regression_loss(q, identity, None, jnp.asarray(action), target, loss_type)
+
+    (value, aux), grad = jax.jit(jax.value_and_grad(loss, has_aux=True))(jnp.asarray(q))
+    td = q[np.arange(256), action].astype(np.float64) - target
+    if loss_type == "huber":
+        want, slope = np.where(np.abs(td) <= 1, 0.5 * td**2, np.abs(td) - 0.5), np.clip(td, -1, 1)
+    else:
+        want, slope = td**2, 2 * td
+    want_grad = np.zeros(q.shape)
+    want_grad[np.arange(256), action] = slope / 256
+    np.testing.assert_allclose(value, want.mean(), rtol=1e-5)
+    np.testing.assert_allclose(grad, want_grad, rtol=1e-5, atol=1e-8)
+    np.testing.assert_allclose(aux["q_mean"], q[np.arange(256), action].mean(), rtol=1e-5)
+    assert float(aux["q_max"]) == np.abs(q).max()
+
+
 def test_terminated_does_not_bootstrap_truncated_does():
     """One row, env 0 terminated, env 1 truncated (done, not terminated), both reward 1."""
     gamma = 0.9
