@@ -237,7 +237,11 @@ class Trainer:
         opt = optax.adam(schedule) if self.config.optimizer == "adam" else optax.sgd(schedule)
         # one flat vector instead of a leaf per layer: far fewer small kernels per update, which
         # bound PQN's many minibatch steps on a GPU (README, "Training-loop throughput")
-        return optax.flatten(optax.chain(optax.clip_by_global_norm(hp.max_grad_norm), opt))
+        # the flat gradient written out once: otherwise the clip's norm and Adam's moments each
+        # read the layers' gradients through the concatenation, the norm at a third the speed
+        written = optax.stateless(lambda updates, _: jax.lax.optimization_barrier(updates))
+        clip = optax.clip_by_global_norm(hp.max_grad_norm)
+        return optax.flatten(optax.chain(written, clip, opt))
 
     def init(self, key: jax.Array, hparams: HParams | None = None) -> TrainState:
         """A fresh training state; ``key`` alone decides every random choice of the run."""
