@@ -238,7 +238,7 @@ class Trainer:
         # one flat vector instead of a leaf per layer: far fewer small kernels per update, which
         # bound PQN's many minibatch steps on a GPU (README, "Training-loop throughput")
         # the flat gradient written out once: otherwise the clip's norm and Adam's moments each
-        # read the layers' gradients through the concatenation, the norm at a third the speed
+        # read the layers' gradients through the concatenation, the norm slowly on a GPU
         written = optax.stateless(lambda updates, _: jax.lax.optimization_barrier(updates))
         clip = optax.clip_by_global_norm(hp.max_grad_norm)
         return optax.flatten(optax.chain(written, clip, opt))
