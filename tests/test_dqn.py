@@ -193,6 +193,22 @@ def test_regression_loss_and_its_gradient_match_numpy(loss_type):
     assert float(aux["q_max"]) == np.abs(q).max()
 
 
+def test_taken_values_masked_and_gathered_agree_with_their_gradients():
+    """The GPU's masked sum and the CPU's take_along_axis: the same values and gradients."""
+    q = jax.random.normal(jax.random.key(0), (64, NUM_ACTIONS))
+    action = jax.random.randint(jax.random.key(1), (64,), 0, NUM_ACTIONS)
+    weight = jax.random.normal(jax.random.key(2), (64,))
+    for masked in (False, True):
+        value, grad = jax.value_and_grad(
+            lambda q, m=masked: (dqn.taken_values(q, action, m) * weight).sum()
+        )(q)
+        np.testing.assert_array_equal(
+            dqn.taken_values(q, action, masked), q[jnp.arange(64), action]
+        )
+        want = jnp.zeros_like(q).at[jnp.arange(64), action].set(weight)
+        np.testing.assert_array_equal(grad, want)
+
+
 def test_terminated_does_not_bootstrap_truncated_does():
     """One row, env 0 terminated, env 1 truncated (done, not terminated), both reward 1."""
     gamma = 0.9

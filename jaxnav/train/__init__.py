@@ -237,11 +237,12 @@ class Trainer:
         opt = optax.adam(schedule) if self.config.optimizer == "adam" else optax.sgd(schedule)
         # one flat vector instead of a leaf per layer: far fewer small kernels per update, which
         # bound PQN's many minibatch steps on a GPU (README, "Training-loop throughput")
-        # the flat gradient written out once: otherwise the clip's norm and Adam's moments each
-        # read the layers' gradients through the concatenation, the norm slowly on a GPU
-        written = optax.stateless(lambda updates, _: jax.lax.optimization_barrier(updates))
-        clip = optax.clip_by_global_norm(hp.max_grad_norm)
-        return optax.flatten(optax.chain(written, clip, opt))
+        chain = [optax.clip_by_global_norm(hp.max_grad_norm), opt]
+        if jax.default_backend() == "gpu":
+            # the flat gradient written out once: otherwise the clip's norm and Adam's moments
+            # each read the layers' gradients through the concatenation, the norm slowly
+            chain.insert(0, optax.stateless(lambda g, _: jax.lax.optimization_barrier(g)))
+        return optax.flatten(optax.chain(*chain))
 
     def init(self, key: jax.Array, hparams: HParams | None = None) -> TrainState:
         """A fresh training state; ``key`` alone decides every random choice of the run."""
