@@ -301,7 +301,7 @@ def dqn_target(params, target_params, apply_fn, batch: Batch, double: bool) -> j
         best = jnp.argmax(q_next_online, axis=-1)
     else:
         best = jnp.argmax(q_next_target, axis=-1)
-    next_value = jnp.take_along_axis(q_next_target, best[:, None], axis=-1)[:, 0]
+    next_value = taken_values(q_next_target, best, masked=False)  # no gradient: no scatter
     return jax.lax.stop_gradient(batch.returns + batch.bootstrap_discount * next_value)
 
 
