@@ -22,7 +22,8 @@ Rows (``ROWS``): ``GridMaze-v0``, ``GridMaze-Random-v0`` (auto-reset ``env.step`
 default; only when asked for),
 ``GridMaze-v0 step_env only`` (no time limit, no auto-reset: the cost of auto-reset is its
 ratio to GridMaze-v0), the robot ``RobotRandom-v0 mjx`` / ``RobotRandom-v0 kinematic`` (a
-random maze per episode, one backend each; ``RobotSimple-v0 ...`` too) and the peers, each
+random maze per episode, one backend each; ``RobotSimple-v0 ...`` too; the generalist
+``RobotNav-v0 kinematic``, a maze of its bank per episode) and the peers, each
 through its own ``make`` and auto-resetting ``step``: gymnax's ``FourRooms-misc`` and
 ``MetaMaze-misc`` (5-tuple), ``navix FourRooms`` (``Navix-FourRooms-v0``, a random layout per
 reset) and ``jaxmarl JaxNav`` (jaxmarl's JaxNav with one agent, its 15 discrete actions and its
@@ -66,7 +67,7 @@ ROBOT_ENVS = tuple(
     f"{env} {backend}"
     for env in ("RobotRandom-v0", "RobotSimple-v0")
     for backend in ("mjx", "kinematic")
-)
+) + ("RobotNav-v0 kinematic",)
 GYMNAX_ENVS = ("FourRooms-misc", "MetaMaze-misc")
 NAVIX = "navix FourRooms"
 JAXMARL = "jaxmarl JaxNav"

@@ -170,6 +170,55 @@ def test_following_diagonal_waypoints_reaches_the_goal_without_cutting_corners(e
     assert diagonal > 0  # the mazes have room for diagonal moves
 
 
+# the planner's moves in its documented order: up, down, left, right, then the diagonals
+MOVES = ((-1, 0), (1, 0), (0, -1), (0, 1), (-1, -1), (-1, 1), (1, -1), (1, 1))
+
+
+def reference_waypoint(ref, here, goal, k, moves, cs):
+    """The documented descent on an independent BFS: ``k`` times, to the first neighbour in
+    ``MOVES`` order with the fewest steps to the goal, if fewer than the cell's own (a diagonal
+    only with both cells beside it known); the goal itself once in its cell, or from a cell
+    with no known path; else the cell's centre."""
+    rows, cols = ref.shape
+    far = np.iinfo(np.int64).max
+
+    def steps(r, c):
+        inside = 0 <= r < rows and 0 <= c < cols
+        return int(ref[r, c]) if inside and ref[r, c] >= 0 else far
+
+    row, col = here
+    if steps(row, col) == far:
+        return goal
+    for _ in range(k):
+        lowest, move = steps(row, col), (0, 0)
+        for dr, dc in MOVES[:moves]:
+            if dr and dc and far in (steps(row + dr, col), steps(row, col + dc)):
+                continue
+            if steps(row + dr, col + dc) < lowest:
+                lowest, move = steps(row + dr, col + dc), (dr, dc)
+        row, col = row + move[0], col + move[1]
+    if steps(row, col) == 0:
+        return goal
+    return np.array([(col + 0.5) * cs, (rows - 0.5 - row) * cs], np.float32)
+
+
+@pytest.mark.parametrize("moves", [4, 8])
+@pytest.mark.parametrize("env_id, overrides", ENVS, ids=ENV_IDS)
+def test_waypoint_is_the_documented_descent_with_its_order_among_equals(env_id, overrides, moves):
+    """From random start points, the waypoint equals the reference descent on an independent
+    BFS exactly: the same cell where several neighbours tie (the first in the documented order
+    wins), no move to a neighbour only as close as the cell, the goal where the path ends."""
+    env, params, waypoint = make(env_id, **dict(overrides + (("waypoint_moves", moves),)))
+    bank = jax.device_get(params.bank)
+    rows, cs = bank.grid.shape[1], bank.cell_size
+    layout, pose, goal = start_poses(env, params, 64, seed=moves)
+    ref, _ = bfs_to_goals(bank, layout, pose, goal)
+    wp = np.asarray(waypoint(jnp.asarray(pose), jnp.asarray(goal), jnp.asarray(layout), params))
+    for i in range(len(layout)):
+        here = cell_of(pose[i], rows, cs)
+        want = reference_waypoint(ref[i], here, goal[i], env.waypoint_steps, moves, cs)
+        np.testing.assert_allclose(wp[i], want, atol=1e-5, err_msg=f"episode {i}")
+
 def test_a_diagonal_move_never_cuts_a_walls_corner(tmp_path):
     """On 1 m cells with one wall cell at (row 1, col 2) and the goal in the top-right cell
     (0, 3): from (2, 2), just below the wall, the diagonal to (1, 3) would cut the wall's

@@ -421,6 +421,10 @@ GENERALIST_SENSORS: dict[str, Any] = {
 }
 
 
+# a waypoint's moves (row, column): up, down, left, right, then the diagonals
+_WAYPOINT_MOVES = ((-1, 0), (1, 0), (0, -1), (0, 1), (-1, -1), (-1, 1), (1, -1), (1, 1))
+
+
 def _bearing(offset: jax.Array, heading: jax.Array) -> jax.Array:
     """(sin, cos) of the direction of ``offset`` (x, y) relative to ``heading``."""
     angle = jnp.arctan2(offset[1], offset[0]) - heading
@@ -828,20 +832,25 @@ class RobotNav(Environment[RobotState, RobotParams]):
         known = jnp.where(steps >= 0, steps.astype(jnp.int32), far)
         padded = jnp.pad(known, 1, constant_values=far)
         start = row, col = self._cell(pose[:2], bank)
-        # up, down, left, right, then the diagonals (padding stands for the arena's outside)
-        d_row = jnp.array([-1, 1, 0, 0, -1, -1, 1, 1][: self.config.waypoint_moves])
-        d_col = jnp.array([0, 0, -1, 1, -1, 1, -1, 1][: self.config.waypoint_moves])
+        # the padding stands for the arena's outside
+        moves = _WAYPOINT_MOVES[: self.config.waypoint_moves]
         for _ in range(self.waypoint_steps):  # a few static steps
-            around = padded[row + 1 + d_row, col + 1 + d_col]
-            # a diagonal move needs both cells beside it free: no cutting a wall's corner
-            beside_free = (padded[row + 1 + d_row, col + 1] < far) & (
-                padded[row + 1, col + 1 + d_col] < far
-            )
-            around = jnp.where((d_row == 0) | (d_col == 0) | beside_free, around, far)
-            best = jnp.argmin(around)
-            better = around[best] < known[row, col]
-            row = jnp.where(better, row + d_row[best], row)
-            col = jnp.where(better, col + d_col[best], col)
+            # to the lowest neighbour below the cell, the first of equals: a chain of selects,
+            # not an argmin, so that XLA fuses the moves into fewer GPU kernels (on a CPU too
+            # the generalist's step is faster: benchmarks/RESULTS.md)
+            lowest, step_row, step_col = known[row, col], 0, 0
+            for d_row, d_col in moves:
+                value = padded[row + 1 + d_row, col + 1 + d_col]
+                if d_row and d_col:  # both cells beside a diagonal free: no cutting a corner
+                    beside_free = (padded[row + 1 + d_row, col + 1] < far) & (
+                        padded[row + 1, col + 1 + d_col] < far
+                    )
+                    value = jnp.where(beside_free, value, far)
+                lower = value < lowest
+                lowest = jnp.where(lower, value, lowest)
+                step_row = jnp.where(lower, d_row, step_row)
+                step_col = jnp.where(lower, d_col, step_col)
+            row, col = row + step_row, col + step_col
         centre = jnp.stack([(col + 0.5), (rows - 0.5 - row)]).astype(jnp.float32) * bank.cell_size
         use_goal = (known[row, col] == 0) | (steps[start] < 0)
         return jnp.where(use_goal, goal, centre)
