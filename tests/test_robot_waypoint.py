@@ -219,6 +219,7 @@ def test_waypoint_is_the_documented_descent_with_its_order_among_equals(env_id, 
         want = reference_waypoint(ref[i], here, goal[i], env.waypoint_steps, moves, cs)
         np.testing.assert_allclose(wp[i], want, atol=1e-5, err_msg=f"episode {i}")
 
+
 def test_a_diagonal_move_never_cuts_a_walls_corner(tmp_path):
     """On 1 m cells with one wall cell at (row 1, col 2) and the goal in the top-right cell
     (0, 3): from (2, 2), just below the wall, the diagonal to (1, 3) would cut the wall's
