@@ -1,18 +1,18 @@
 """The fused LayerNorm's Pallas kernels by block size, against XLA's fusion of the same math.
 
     python -m benchmarks.layer_norm_blocks [--rows 16384] [--widths 1024,512,256]
-        [--rows-per-block 4,8,16,32] [--warps 4,8,16] [--walks 1] [--chain 20]
-        [--out benchmarks/results/layer_norm_blocks.json]
+        [--rows-per-block 2,4,8,16,32] [--warps 4,8] [--instances 256,512,1024]
+        [--stages 1,2] [--chain 20] [--out benchmarks/results/layer_norm_blocks.json]
 
 For each row width, ``agents.layer_norm``'s forward and backward (``z``'s gradient and the
 three parameter gradients' column sums) in bfloat16, as a GPU training step runs them, with
-every (rows, warps) of one kernel instance (the backward's instance walking each of
-``--walks`` such blocks in turn), and the jnp form (``pallas=False``: what XLA
-fuses of the same functions) as the baseline. One program chains ``--chain`` calls (each
-call's output the next one's input) so launches overlap as in training; reported: the time
-per call, the baseline's time over it, and compile time apart. The blocks ``layer_norm``
-uses (``FORWARD_BLOCKS``, ``BACKWARD_BLOCKS``) are marked. Triton kernels need a GPU: a run
-elsewhere says so in one line (exit 2).
+every ``layer_norm.Blocks`` of the options (rows a block, warps an instance, at most so many
+instances looping over the blocks, loads pipelined so many stages deep), and the jnp form
+(``pallas=False``: what XLA fuses of the same functions) as the baseline. One program
+chains ``--chain`` calls (each call's output the next one's input) so launches overlap as in
+training; reported: the time per call, the baseline's time over it, and compile time apart.
+The blocks ``layer_norm`` uses (``FORWARD_BLOCKS``, ``BACKWARD_BLOCKS``) are marked. Triton
+kernels need a GPU: a run elsewhere says so in one line (exit 2).
 """
 
 from __future__ import annotations
@@ -53,15 +53,9 @@ def seconds_per_call(op: Callable[[jax.Array], tuple], x: jax.Array, chain: int)
     return min(program() for _ in range(REPEATS)) / chain, compile_s
 
 
-def measure(
-    rows: int,
-    width: int,
-    blocks: list[tuple[int, int]],
-    chain: int,
-    walks: tuple[int, ...] = (1,),
-) -> list[dict]:
-    """One width: the jnp form, then the kernels with each block (rows, warps), forward and
-    backward, the backward with each number of blocks an instance walks (``walks``)."""
+def measure(rows: int, width: int, blocks: list[layer_norm.Blocks], chain: int) -> list[dict]:
+    """One width: the jnp form, then the kernels with each of ``blocks`` whose rows divide
+    ``rows``, forward and backward."""
     k_z, k_g = jax.random.split(jax.random.key(width))
     z = jax.random.normal(k_z, (rows, width), jnp.bfloat16)
     grad = jax.random.normal(k_g, (rows, width), jnp.bfloat16)
@@ -79,29 +73,27 @@ def measure(
 
         return op
 
-    # the backward's entries add the blocks an instance walks
-    walked = [(*block, walk) for block in blocks for walk in walks]
     directions = {
-        "forward": (forward, layer_norm.FORWARD_BLOCKS, z, blocks),
-        "backward": (backward, layer_norm.BACKWARD_BLOCKS, grad, walked),
+        "forward": (forward, layer_norm.FORWARD_BLOCKS, z),
+        "backward": (backward, layer_norm.BACKWARD_BLOCKS, grad),
     }
     out = []
-    for direction, (op, table, x, entries) in directions.items():
+    for direction, (op, table, x) in directions.items():
         chosen = table[width]
         base_s, base_compile = seconds_per_call(op(False), x, chain)
         out.append(row(direction, width, "jnp (XLA)", base_s, base_s, base_compile, False))
-        for entry in entries:
-            walk = entry[2] if len(entry) > 2 else 1  # forward entries: (rows, warps)
-            if rows % (entry[0] * walk):
+        for entry in blocks:
+            if rows % entry.rows:
                 continue
             table[width] = entry  # read when the kernels are traced
             try:
                 s, compile_s = seconds_per_call(op(True), x, chain)
             finally:
                 table[width] = chosen
-            label = f"{entry[0]} rows, {entry[1]} warps"
-            if walk > 1:
-                label += f", {walk} blocks an instance"
+            label = (
+                f"{entry.rows} rows, {entry.warps} warps, {entry.instances} instances, "
+                f"{entry.stages} stages"
+            )
             out.append(row(direction, width, label, s, base_s, compile_s, entry == chosen))
     return out
 
@@ -154,11 +146,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--rows", type=int, default=16384)
     p.add_argument("--widths", type=int_list, default=[1024, 512, 256])
-    p.add_argument("--rows-per-block", type=int_list, default=[4, 8, 16, 32])
-    p.add_argument("--warps", type=int_list, default=[4, 8, 16])
-    p.add_argument(
-        "--walks", type=int_list, default=[1], help="row blocks a backward instance walks"
-    )
+    p.add_argument("--rows-per-block", type=int_list, default=[2, 4, 8, 16, 32])
+    p.add_argument("--warps", type=int_list, default=[4, 8])
+    p.add_argument("--instances", type=int_list, default=[256, 512, 1024], help="at most")
+    p.add_argument("--stages", type=int_list, default=[1, 2], help="Triton's pipeline depth")
     p.add_argument("--chain", type=int, default=20, help="calls chained in one program")
     p.add_argument("--out", type=Path, default=Path("benchmarks/results/layer_norm_blocks.json"))
     args = p.parse_args(argv)
@@ -173,7 +164,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         print("layer_norm_blocks: the Triton kernels need a GPU; this machine has none",
               file=sys.stderr)  # fmt: skip
         raise SystemExit(2)
-    blocks = list(itertools.product(args.rows_per_block, args.warps))
+    blocks = [
+        layer_norm.Blocks(*b)
+        for b in itertools.product(args.rows_per_block, args.warps, args.instances, args.stages)
+    ]
     result = {
         "machine": machine_info(),
         "command": "python -m benchmarks.layer_norm_blocks " + " ".join(argv or sys.argv[1:]),
@@ -182,7 +176,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "measurements": [
             r
             for w in args.widths
-            for r in measure(args.rows, w, blocks, args.chain, tuple(args.walks))
+            for r in measure(args.rows, w, blocks, args.chain)
         ],
     }
     write_results(args.out, result, markdown(result))

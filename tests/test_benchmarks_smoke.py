@@ -169,30 +169,30 @@ def test_profile_training_sums_device_kernels_by_kind(tmp_path: Path, capsys) ->
     assert not out.exists()
 
 
-def test_layer_norm_blocks_times_each_block_against_the_jnp_form() -> None:
+def test_layer_norm_blocks_times_each_block_against_the_jnp_form(monkeypatch) -> None:
     from benchmarks import layer_norm_blocks as lnb
     from jaxnav.agents import layer_norm
+    from jaxnav.agents.layer_norm import Blocks
 
+    chosen = Blocks(32, 4, 2, 1)
+    monkeypatch.setitem(layer_norm.BACKWARD_BLOCKS, 128, chosen)
     before = dict(layer_norm.BACKWARD_BLOCKS)
-    chosen = layer_norm.BACKWARD_BLOCKS[128]
-    # 64 rows, or 32 walked twice: more than the 32 there are, so not measured
-    rows = lnb.measure(32, 128, [(8, 4), (32, 4), (64, 4)], chain=2, walks=(1, 2))
+    # blocks of 64 rows: more than the 32 there are, so not measured
+    blocks = [Blocks(8, 4, 2, 2), Blocks(32, 4, 2, 1), Blocks(64, 4, 1, 1)]
+    rows = lnb.measure(32, 128, blocks, chain=2)
     assert layer_norm.BACKWARD_BLOCKS == before  # the table is restored
     backward = [r for r in rows if r["direction"] == "backward"]
     assert [r["form"] for r in backward] == [
         "jnp (XLA)",
-        "8 rows, 4 warps",
-        "8 rows, 4 warps, 2 blocks an instance",
-        "32 rows, 4 warps",
+        "8 rows, 4 warps, 2 instances, 2 stages",
+        "32 rows, 4 warps, 2 instances, 1 stages",
     ]
-    assert [r["chosen"] for r in backward] == [
-        False, (8, 4, 1) == chosen, (8, 4, 2) == chosen, (32, 4, 1) == chosen
-    ]  # fmt: skip
+    assert [r["chosen"] for r in backward] == [False, False, True]
     forward = [r["form"] for r in rows if r["direction"] == "forward"]
-    assert forward == ["jnp (XLA)", "8 rows, 4 warps", "32 rows, 4 warps"]
+    assert forward == [r["form"] for r in backward]
     assert backward[0]["jnp_over_this"] == 1.0
     assert all(r["us_per_call"] > 0 and r["compile_s"] > 0 for r in rows)
-    assert "| backward | 128 | **32 rows, 4 warps** |" in lnb.markdown(
+    assert "| backward | 128 | **32 rows, 4 warps, 2 instances, 1 stages** |" in lnb.markdown(
         {"machine": {"devices": ["cpu"], "jax_version": "x", "date": "2026-11-24"},
          "command": "c", "rows": 32, "chain": 2, "measurements": rows}
     )  # fmt: skip

@@ -59,16 +59,26 @@ def assert_computes_flax_layer_norm_relu(fn, args, cotangent):
 
 
 @pytest.mark.parametrize(
-    "pallas, walk", [(False, 1), (True, 1), (True, 2)], ids=["jnp", "pallas", "pallas-walking"]
-)
-def test_fused_op_is_flax_layer_norm_then_relu_with_its_gradient(pallas, walk, monkeypatch):
-    """``walk`` > 1: each backward kernel instance walks that many blocks of 8 rows (the
-    column sums of all of them added up before they are written); 1: the table's block."""
-    if walk > 1:
-        monkeypatch.setitem(layer_norm.BACKWARD_BLOCKS, WIDTH, (8, 4, walk))
+    "pallas, blocks",
+    [(False, None), (True, None), (True, layer_norm.Blocks(8, 4, 2, 2)),
+     (True, layer_norm.Blocks(4, 4, 3, 1))],
+    ids=["jnp", "pallas", "pallas-2-trips", "pallas-4-trips"],
+)  # fmt: skip
+def test_fused_op_is_flax_layer_norm_then_relu_with_its_gradient(pallas, blocks, monkeypatch):
+    """``blocks``: each kernel instance loops over several blocks of rows (the backward's
+    column sums of all of them added up before they are written): 32 rows in blocks of 8 over
+    at most 2 instances, 2 blocks each; in blocks of 4 over at most 3, so 2 instances of 4
+    blocks (an instance count that divides the blocks). None: the tables' blocks, one an
+    instance at these 32 rows."""
+    if blocks is not None:
+        monkeypatch.setitem(layer_norm.BACKWARD_BLOCKS, WIDTH, blocks)
+        monkeypatch.setitem(layer_norm.FORWARD_BLOCKS, WIDTH, blocks)
     args, cotangent = inputs()
     fused = lambda *a: layer_norm_relu(*a, pallas=pallas)  # noqa: E731
     assert kernel_fits(ROWS, WIDTH) and uses_kernel(fused, args) == pallas
+    if blocks is not None:
+        jaxpr = str(jax.make_jaxpr(jax.grad(lambda *a: fused(*a).sum()))(*args))
+        assert jaxpr.count("grid=(2,)") == 2, "both kernels over 2 instances"
     assert_computes_flax_layer_norm_relu(fused, args, cotangent)
 
 

@@ -13,7 +13,7 @@ what ``flax.linen.LayerNorm`` followed by ``nn.relu`` does, with the Dense bias 
 
 Two implementations of that math. ``pallas=True``: Pallas kernels (Triton on a GPU), one pass
 over each block of rows forward (read ``z``, write the output) and one backward (read the
-output's gradient and ``z``, write ``z``'s gradient and each block's column sums of the three
+output's gradient and ``z``, write ``z``'s gradient and each instance's column sums of the three
 parameter gradients), where XLA's fusions of the same function read each activation several
 times (with flax's LayerNorm, reductions took 44% of the GPU's kernel time:
 ``benchmarks/results/archive/profile_training_h100_RobotNav-v0_flax_norm.md``). On a backend
@@ -29,6 +29,7 @@ devices; row counts the devices do not divide evenly take the jnp form.
 from __future__ import annotations
 
 import functools
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -39,27 +40,44 @@ from jax.sharding import PartitionSpec as P
 EPSILON = 1e-6  # flax.linen.LayerNorm's default
 # widths the kernels take: a whole row is one block, Triton wants powers of two
 KERNEL_WIDTHS = tuple(2**k for k in range(7, 12))  # 128 .. 2048
-# (rows, GPU warps) of one kernel instance, by row width, forward and backward, chosen on one
-# H100 at 16,384 rows from each kernel timed alone, then the 1024-512-256 preset trained with a
-# few (1024 backward at 8x4, 8x8 and 16x16, larger blocks at 256 and 512, smaller forward ones:
-# all within 1%). At 1024 the backward's 16-row blocks spill: 80 us a call with 8 rows x 4
-# warps, 85 with 16 x 8, 178 with 16 x 4
-# (``benchmarks/results/archive/layer_norm_blocks_h100_one_block_an_instance.md``). 128 and
-# 2048 follow the pattern, unmeasured. A backward instance walks several blocks in turn at 256
-# (2 of 32 rows, 8 warps), 512 (2 of 8 rows) and 1024 (4 of 4), so that fewer column sums are
-# written and reduced: at 512 and 1024 the preset trained at 6.75M env steps/s against 6.59M
-# (README, "Training-loop throughput"); the 256 entry, the one the kernel table ranks first
-# at 256 (``benchmarks/results/layer_norm_blocks_h100.md``, ``--walks``), came with the PQN's
-# unrolled minibatch loop. Timed alone the kernels vary by a tenth from run to run at these
-# sizes.
-FORWARD_BLOCKS: dict[int, tuple[int, int]] = dict.fromkeys(KERNEL_WIDTHS, (8, 4))
-# backward: (rows, warps, blocks an instance walks)
-BACKWARD_BLOCKS: dict[int, tuple[int, int, int]] = {
-    128: (32, 4, 1),
-    256: (32, 8, 2),
-    512: (8, 4, 2),
-    1024: (4, 4, 4),
-    2048: (4, 4, 1),
+
+
+class Blocks(NamedTuple):
+    """How a kernel covers its rows: blocks of ``rows`` rows, one at a time in an instance of
+    ``warps`` GPU warps; at most ``instances`` instances, each looping over every
+    ``instances``-th block (neighbouring instances read neighbouring rows) in a rolled loop
+    whose loads Triton pipelines ``stages`` deep."""
+
+    rows: int
+    warps: int
+    instances: int
+    stages: int
+
+
+# Chosen on one H100 at 16,384 rows from each kernel timed alone
+# (``python -m benchmarks.layer_norm_blocks``, ``benchmarks/results/layer_norm_blocks_h100.md``:
+# the fastest there at 1024 and for the 256 backward; the others within a tenth to a fifth of
+# the fastest, what the table varies from run to run at these sizes),
+# then the 1024-512-256 preset trained with them: at 512 and 1024 a few hundred instances
+# looping over small blocks, the next block's loads issued while the last one computes, trained
+# at 7.34M env steps/s where instances walking 2-4 blocks unrolled trained at 7.15M
+# (``benchmarks/results/train_throughput_h100_RobotNav-v0.md`` and the archived
+# ``*_unrolled_walk``). Backward instances add up their blocks' column sums of the parameter
+# gradients in registers and write them once: fewer instances, fewer partial sums to reduce.
+# 128 and 2048 keep the blocks measured before the loop (one an instance), unmeasured since.
+FORWARD_BLOCKS: dict[int, Blocks] = {
+    128: Blocks(8, 4, 2048, 1),
+    256: Blocks(16, 4, 256, 2),
+    512: Blocks(8, 4, 512, 2),
+    1024: Blocks(8, 4, 512, 2),
+    2048: Blocks(8, 4, 2048, 1),
+}
+BACKWARD_BLOCKS: dict[int, Blocks] = {
+    128: Blocks(32, 4, 512, 1),
+    256: Blocks(32, 4, 256, 2),
+    512: Blocks(4, 4, 512, 2),
+    1024: Blocks(2, 4, 512, 2),
+    2048: Blocks(4, 4, 4096, 1),
 }
 
 
@@ -67,9 +85,7 @@ def kernel_fits(rows: int, width: int) -> bool:
     """Whether the Pallas kernels take ``rows`` x ``width`` (else the jnp form runs)."""
     if width not in KERNEL_WIDTHS:
         return False
-    rows_per_block, _, walk = BACKWARD_BLOCKS[width]
-    block = max(FORWARD_BLOCKS[width][0], rows_per_block * walk)
-    return rows > 0 and rows % block == 0
+    return rows > 0 and all(rows % t[width].rows == 0 for t in (FORWARD_BLOCKS, BACKWARD_BLOCKS))
 
 
 def layer_norm_relu(
@@ -148,101 +164,123 @@ def _backward_jnp(grad, z, dense_bias, scale, bias, mean, rstd):
 
 
 # ----------------------------------------------------------------------------- Pallas kernels
-def _forward_kernel(z_ref, dense_bias_ref, scale_ref, bias_ref, out_ref, mean_ref, rstd_ref):
-    out, mean, rstd = _forward_math(z_ref[...], dense_bias_ref[...], scale_ref[...], bias_ref[...])
-    out_ref[...] = out.astype(out_ref.dtype)
-    mean_ref[...] = mean
-    rstd_ref[...] = rstd
+def _each_block(rows_per_block: int, trips: int, body, init):
+    """``body(rows, carry)`` on this instance's blocks in turn: blocks ``pid``, ``pid +
+    instances``, ... (``trips`` of them), ``rows`` a ``pl.ds`` of ``rows_per_block``."""
+    instances, pid = pl.num_programs(0), pl.program_id(0)
+
+    def step(i, carry):
+        start = pl.multiple_of((i * instances + pid) * rows_per_block, rows_per_block)
+        return body(pl.ds(start, rows_per_block), carry)
+
+    return jax.lax.fori_loop(0, trips, step, init)
+
+
+def _forward_kernel(
+    rows_per_block: int, trips: int,
+    z_ref, dense_bias_ref, scale_ref, bias_ref, out_ref, mean_ref, rstd_ref,
+):  # fmt: skip
+    params = (dense_bias_ref[...], scale_ref[...], bias_ref[...])
+
+    def block(rows, carry):
+        out, mean, rstd = _forward_math(z_ref[rows, :], *params)
+        out_ref[rows, :] = out.astype(out_ref.dtype)
+        mean_ref[rows] = mean
+        rstd_ref[rows] = rstd
+        return carry
+
+    _each_block(rows_per_block, trips, block, 0)
 
 
 def _backward_kernel(
-    walk: int,
+    rows_per_block: int, trips: int,
     grad_ref, z_ref, dense_bias_ref, scale_ref, bias_ref, mean_ref, rstd_ref, dz_ref, sums_ref,
 ):  # fmt: skip
-    """One instance: ``walk`` blocks of rows in turn (unrolled), their column sums of the three
-    parameter gradients added up in registers and written once to ``sums_ref`` (4 rows, the
-    4th there for Triton's power-of-two blocks and not written): fewer partial sums to write
-    and to reduce after."""
-    block = z_ref.shape[0] // walk
+    """``z``'s gradient of this instance's blocks, and their column sums of the three
+    parameter gradients added up in the loop and written once to ``sums_ref`` (4 rows, the
+    4th there for Triton's power-of-two blocks and not written)."""
     params = (dense_bias_ref[...], scale_ref[...], bias_ref[...])
-    total = None
-    for j in range(walk):
-        rows = pl.ds(j * block, block)
+
+    def block(rows, total):
         dz, per_row = _backward_math(
             grad_ref[rows, :], z_ref[rows, :], *params, mean_ref[rows], rstd_ref[rows]
         )
         dz_ref[rows, :] = dz.astype(dz_ref.dtype)
-        sums = [jnp.sum(g, axis=0) for g in per_row]
-        total = sums if total is None else [t + s for t, s in zip(total, sums, strict=True)]
+        return tuple(t + jnp.sum(g, axis=0) for t, g in zip(total, per_row, strict=True))
+
+    zero = jnp.zeros(z_ref.shape[1:], jnp.float32)
+    total = _each_block(rows_per_block, trips, block, (zero, zero, zero))
     for i, t in enumerate(total):
         sums_ref[pl.ds(i, 1), :] = t[None, :]
 
 
-def _rows_spec(block: int, width: int) -> pl.BlockSpec:
-    return pl.BlockSpec((block, width), lambda i: (i, 0))
+def _launch(blocks: Blocks, rows: int) -> tuple[int, int]:
+    """(instances, trips): at most ``blocks.instances`` instances, each looping over the same
+    number of blocks."""
+    count = rows // blocks.rows
+    trips = -(-count // blocks.instances)
+    while count % trips:
+        trips += 1
+    return count // trips, trips
 
 
-def _vector_spec(width: int) -> pl.BlockSpec:
-    return pl.BlockSpec((width,), lambda i: (0,))
-
-
-def _per_row_spec(block: int) -> pl.BlockSpec:
-    return pl.BlockSpec((block,), lambda i: (i,))
-
-
-def _call(kernel, block: tuple[int, int], out_shape, in_specs, out_specs, name: str):
-    rows_per_block, warps = block
+def _call(kernel, blocks: Blocks, args, out_shape, sums_width: int | None, name: str):
+    """``kernel(rows_per_block, trips, *refs)`` over ``args`` (rows first) with ``blocks``:
+    every array whole to each instance (it slices its own blocks); with ``sums_width``, a
+    last output of 4 rows x ``sums_width`` an instance."""
+    instances, trips = _launch(blocks, args[0].shape[0])
     interpret = jax.default_backend() != "gpu"
     if interpret:
         params = None
     else:
         from jax.experimental.pallas import triton as pl_triton
 
-        params = pl_triton.CompilerParams(num_warps=warps, num_stages=1)
+        params = pl_triton.CompilerParams(num_warps=blocks.warps, num_stages=blocks.stages)
+
+    def whole(shape) -> pl.BlockSpec:
+        return pl.BlockSpec(shape, lambda i: (0,) * len(shape))
+
+    out_specs = [whole(o.shape) for o in out_shape]
+    if sums_width is not None:
+        out_shape = (*out_shape, jax.ShapeDtypeStruct((instances * 4, sums_width), jnp.float32))
+        out_specs.append(pl.BlockSpec((4, sums_width), lambda i: (i, 0)))
     return pl.pallas_call(
-        kernel,
-        out_shape=out_shape,
-        grid=(out_shape[0].shape[0] // rows_per_block,),
-        in_specs=in_specs,
-        out_specs=out_specs,
+        functools.partial(kernel, blocks.rows, trips),
+        out_shape=tuple(out_shape),
+        grid=(instances,),
+        in_specs=[whole(a.shape) for a in args],
+        out_specs=tuple(out_specs),
         interpret=interpret,
         compiler_params=params,
         name=name,
-    )
+    )(*args)
 
 
 def _forward_pallas(z, dense_bias, scale, bias):
     rows, width = z.shape
-    block = FORWARD_BLOCKS[width][0]
     per_row = jax.ShapeDtypeStruct((rows,), jnp.float32)
     return _call(
         _forward_kernel,
         FORWARD_BLOCKS[width],
+        (z, dense_bias, scale, bias),
         (jax.ShapeDtypeStruct(z.shape, z.dtype), per_row, per_row),
-        [_rows_spec(block, width)] + [_vector_spec(width)] * 3,
-        (_rows_spec(block, width), _per_row_spec(block), _per_row_spec(block)),
+        None,
         "layer_norm_relu_forward",
-    )(z, dense_bias, scale, bias)
+    )
 
 
 def _backward_pallas(grad, z, dense_bias, scale, bias, mean, rstd):
-    rows, width = z.shape
-    rows_per_block, warps, walk = BACKWARD_BLOCKS[width]
-    block = rows_per_block * walk  # an instance's rows
-    blocks = rows // block
+    width = z.shape[1]
     dz, sums = _call(
-        functools.partial(_backward_kernel, walk),
-        (block, warps),
-        (
-            jax.ShapeDtypeStruct(z.shape, z.dtype),
-            jax.ShapeDtypeStruct((blocks * 4, width), jnp.float32),
-        ),
-        [_rows_spec(block, width)] * 2 + [_vector_spec(width)] * 3 + [_per_row_spec(block)] * 2,
-        (_rows_spec(block, width), _rows_spec(4, width)),
+        _backward_kernel,
+        BACKWARD_BLOCKS[width],
+        (grad.astype(z.dtype), z, dense_bias, scale, bias, mean, rstd),
+        (jax.ShapeDtypeStruct(z.shape, z.dtype),),
+        width,
         "layer_norm_relu_backward",
-    )(grad.astype(z.dtype), z, dense_bias, scale, bias, mean, rstd)
-    # one reduction over all blocks for the three sums (three took 3x the launches)
-    total = sums.reshape(blocks, 4, width)[:, :3].sum(0)
+    )
+    # one reduction over all instances for the three sums (three took 3x the launches)
+    total = sums.reshape(-1, 4, width)[:, :3].sum(0)
     return (dz, total[0], total[1], total[2])
 
 
