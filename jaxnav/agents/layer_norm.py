@@ -224,11 +224,12 @@ def _launch(blocks: Blocks, rows: int) -> tuple[int, int]:
     return count // trips, trips
 
 
-def _call(kernel, blocks: Blocks, args, out_shape, sums_width: int | None, name: str):
-    """``kernel(rows_per_block, trips, *refs)`` over ``args`` (rows first) with ``blocks``:
-    every array whole to each instance (it slices its own blocks); with ``sums_width``, a
-    last output of 4 rows x ``sums_width`` an instance."""
-    instances, trips = _launch(blocks, args[0].shape[0])
+def _call(kernel, blocks: Blocks, args, out_shape, column_sums: bool, name: str):
+    """``kernel(rows_per_block, trips, *refs)`` over ``args`` (the first [rows, width]) with
+    ``blocks``: every array whole to each instance (it slices its own blocks); with
+    ``column_sums``, a last output of 4 rows x width an instance."""
+    rows, width = args[0].shape
+    instances, trips = _launch(blocks, rows)
     interpret = jax.default_backend() != "gpu"
     if interpret:
         params = None
@@ -241,9 +242,9 @@ def _call(kernel, blocks: Blocks, args, out_shape, sums_width: int | None, name:
         return pl.BlockSpec(shape, lambda i: (0,) * len(shape))
 
     out_specs = [whole(o.shape) for o in out_shape]
-    if sums_width is not None:
-        out_shape = (*out_shape, jax.ShapeDtypeStruct((instances * 4, sums_width), jnp.float32))
-        out_specs.append(pl.BlockSpec((4, sums_width), lambda i: (i, 0)))
+    if column_sums:
+        out_shape = (*out_shape, jax.ShapeDtypeStruct((instances * 4, width), jnp.float32))
+        out_specs.append(pl.BlockSpec((4, width), lambda i: (i, 0)))
     return pl.pallas_call(
         functools.partial(kernel, blocks.rows, trips),
         out_shape=tuple(out_shape),
@@ -264,7 +265,7 @@ def _forward_pallas(z, dense_bias, scale, bias):
         FORWARD_BLOCKS[width],
         (z, dense_bias, scale, bias),
         (jax.ShapeDtypeStruct(z.shape, z.dtype), per_row, per_row),
-        None,
+        False,
         "layer_norm_relu_forward",
     )
 
@@ -276,7 +277,7 @@ def _backward_pallas(grad, z, dense_bias, scale, bias, mean, rstd):
         BACKWARD_BLOCKS[width],
         (grad.astype(z.dtype), z, dense_bias, scale, bias, mean, rstd),
         (jax.ShapeDtypeStruct(z.shape, z.dtype),),
-        width,
+        True,
         "layer_norm_relu_backward",
     )
     # one reduction over all instances for the three sums (three took 3x the launches)
