@@ -12,7 +12,10 @@ the trace is put in one kind by its name (``KINDS``: the Pallas LayerNorm kernel
 products, reductions, dtype conversions, sorts, gathers and scatters, copies, the rest) and its
 time summed. Reported: the span from the first kernel's start to the last one's end, the
 kernels' total time (so the fraction of the span the device was busy), each kind's time and
-share, and the kernels that took longest. Needs an accelerator: a CPU run's trace has no
+share, the kernels that took longest, and where the device sat idle within the intervals
+(the time between a kernel's start and the end of all before it, put on that kernel: the
+kernels the device waited for; the ``repeats - 1`` longest waits, the host's between
+intervals, left out). Needs an accelerator: a CPU run's trace has no
 device kernels and the script says so in one line (exit 2).
 """
 
@@ -68,8 +71,26 @@ def device_kernels(trace: dict[str, Any]) -> list[dict[str, Any]]:
     return [e for e in events if e.get("ph") == "X" and e.get("pid") in devices]
 
 
-def summarize(kernels: list[dict[str, Any]]) -> dict[str, Any]:
-    """Span, busy time, time per kind and the longest kernels (microseconds)."""
+def idle_before(kernels: list[dict[str, Any]], between: int = 0) -> dict[str, list[float]]:
+    """Kernel name -> [waits, idle us]: the device's idle time before each kernel started
+    (after every earlier kernel had ended), without the ``between`` longest waits."""
+    ordered = sorted(kernels, key=lambda e: e["ts"])
+    waits, end = [], ordered[0]["ts"]
+    for e in ordered:
+        if e["ts"] > end:
+            waits.append((e["ts"] - end, e["name"]))
+        end = max(end, e["ts"] + e.get("dur", 0))
+    kept = sorted(waits, reverse=True)[between:]
+    by_name: dict[str, list[float]] = collections.defaultdict(lambda: [0, 0.0])
+    for us, name in kept:
+        by_name[name][0] += 1
+        by_name[name][1] += us
+    return by_name
+
+
+def summarize(kernels: list[dict[str, Any]], repeats: int = 1) -> dict[str, Any]:
+    """Span, busy time, time per kind, the longest kernels and the idle time within the
+    ``repeats`` intervals, by the kernel waited for (microseconds)."""
     if not kernels:
         raise ValueError("the trace has no device kernels (profiling needs an accelerator)")
     start = min(e["ts"] for e in kernels)
@@ -82,6 +103,7 @@ def summarize(kernels: list[dict[str, Any]]) -> dict[str, Any]:
         by_name[e["name"]][1] += e.get("dur", 0)
     busy = sum(by_kind.values())
     top = sorted(by_name.items(), key=lambda kv: -kv[1][1])[:TOP]
+    idle = idle_before(kernels, repeats - 1)
     return {
         "span_us": end - start,
         "busy_us": busy,
@@ -89,6 +111,11 @@ def summarize(kernels: list[dict[str, Any]]) -> dict[str, Any]:
         "by_kind_us": by_kind,
         "top": [
             {"name": n, "kind": kind_of(n), "calls": int(c), "total_us": t} for n, (c, t) in top
+        ],
+        "idle_us": sum(t for _, t in idle.values()),
+        "idle_before": [
+            {"name": n, "kind": kind_of(n), "waits": int(c), "total_us": t}
+            for n, (c, t) in sorted(idle.items(), key=lambda kv: -kv[1][1])[:TOP]
         ],
     }
 
@@ -123,7 +150,7 @@ def profile(config: TrainConfig, iterations: int, repeats: int) -> dict[str, Any
             "hidden_sizes": list(config.hidden_sizes),
             "compute_dtype": config.compute_dtype,
         },
-        **summarize(device_kernels(trace)),
+        **summarize(device_kernels(trace), repeats),
     }
 
 
@@ -149,6 +176,18 @@ def markdown(result: dict[str, Any]) -> str:
     for t in result["top"]:
         lines.append(
             f"| `{t['name'][:70]}` | {t['kind']} | {t['calls']} | {t['total_us'] / 1e3:.1f} |"
+        )
+    idle = result["idle_us"]
+    lines += [
+        "",
+        f"Idle within the intervals: {idle / 1e3:.1f} ms ({idle / span:.0%} of the span), "
+        "by the kernel the device waited for:\n",
+        "| idle before | kind | waits | ms |",
+        "|---|---|---:|---:|",
+    ]
+    for t in result["idle_before"]:
+        lines.append(
+            f"| `{t['name'][:70]}` | {t['kind']} | {t['waits']} | {t['total_us'] / 1e3:.1f} |"
         )
     return "\n".join(lines)
 

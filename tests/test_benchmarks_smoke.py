@@ -138,14 +138,14 @@ def test_profile_training_sums_device_kernels_by_kind(tmp_path: Path, capsys) ->
         ("gemm_fusion_dot_general_3", 100, 30),
         ("input_add_reduce_fusion_3", 140, 50),
         ("input_add_reduce_fusion_3", 200, 50),
-        ("loop_convert_fusion", 260, 10),
-        ("void cub::detail::radix_sort::DeviceRadixSortOnesweepKernel", 275, 5),
-        ("layer_norm_relu_backward__2", 290, 10),  # agents.layer_norm's Pallas kernel
+        ("loop_convert_fusion", 275, 10),
+        ("void cub::detail::radix_sort::DeviceRadixSortOnesweepKernel", 290, 5),
+        ("layer_norm_relu_backward__2", 300, 10),  # agents.layer_norm's Pallas kernel
     ]
     events = [device, host, {"ph": "X", "pid": 2, "name": "a host op", "ts": 0, "dur": 999}]
     events += [{"ph": "X", "pid": 1, "name": n, "ts": t, "dur": d} for n, t, d in kernels]
     s = pt.summarize(pt.device_kernels({"traceEvents": events}))
-    assert (s["span_us"], s["busy_us"], s["kernels"]) == (200, 155, 6)
+    assert (s["span_us"], s["busy_us"], s["kernels"]) == (210, 155, 6)
     assert s["by_kind_us"] == {
         "LayerNorm kernels (Pallas)": 10, "matrix products": 30, "reductions": 100,
         "conversions": 10, "sorts": 5, "gathers and scatters": 0, "copies": 0, "other": 0,
@@ -153,6 +153,15 @@ def test_profile_training_sums_device_kernels_by_kind(tmp_path: Path, capsys) ->
     assert s["top"][0] == {
         "name": "input_add_reduce_fusion_3", "kind": "reductions", "calls": 2, "total_us": 100,
     }  # fmt: skip
+    # idle: 10 us before each reduction, 25 before the conversion, 5 before the sort and the
+    # LayerNorm kernel each, put on the kernel waited for
+    assert s["idle_us"] == 55 and s["idle_before"][:2] == [
+        {"name": "loop_convert_fusion", "kind": "conversions", "waits": 1, "total_us": 25},
+        {"name": "input_add_reduce_fusion_3", "kind": "reductions", "waits": 2, "total_us": 20},
+    ]  # fmt: skip
+    # as 2 repeats: the longest wait is the host's between them, left out
+    two = pt.summarize(pt.device_kernels({"traceEvents": events}), repeats=2)
+    assert two["idle_us"] == 30 and two["idle_before"][0]["total_us"] == 20
     # this CPU runs no device kernels: one line, exit 2, nothing written
     out = tmp_path / "p.json"
     with pytest.raises(SystemExit) as exit_info:
