@@ -35,7 +35,7 @@ from jaxnav.config import TrainConfig
 from jaxnav.envs.robot.env import LASER_SCALE
 from jaxnav.evaluate import run_episodes
 from jaxnav.experiments import Family, default_families
-from jaxnav.train import Trainer
+from jaxnav.train import Trainer, jit_training
 
 # RobotNav-v0 before the levers below: the paper's speed, turn rate and reward terms, a 14 m
 # lidar, no waypoint
@@ -238,7 +238,7 @@ def run_row(index: int, episodes: int) -> dict[str, Any]:
     # vmapped over a batch of one key (rows 0-19 used jit(train)): with the optimizer state of
     # a leaf per layer that ran 1.43x as fast on one H100; with today's preset the two run
     # alike (benchmarks/results/train_vmap_h100.md)
-    train = jax.jit(jax.vmap(trainer.train))
+    train = jit_training(jax.vmap(trainer.train))
     keys = jax.random.key(0)[None]
     if index >= SPLIT_KEY_ROWS:
         keys = jax.random.split(jax.random.key(0), 1)

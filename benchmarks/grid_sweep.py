@@ -24,7 +24,7 @@ import numpy as np
 from benchmarks.common import machine_info, write_results
 from jaxnav.config import TrainConfig
 from jaxnav.evaluate import evaluate_seeds, format_value, mean_of
-from jaxnav.train import Trainer
+from jaxnav.train import Trainer, jit_training
 
 
 def run_variant(overrides: dict, seeds: int, eval_episodes: int, base: dict) -> dict:
@@ -34,7 +34,7 @@ def run_variant(overrides: dict, seeds: int, eval_episodes: int, base: dict) -> 
     trainer = Trainer(cfg)
     keys = jax.random.split(jax.random.key(cfg.seed), seeds)
     t0 = time.perf_counter()
-    train = jax.jit(jax.vmap(trainer.train)).lower(keys).compile()
+    train = jit_training(jax.vmap(trainer.train)).lower(keys).compile()
     compile_s = time.perf_counter() - t0
     t0 = time.perf_counter()
     ts, metrics = jax.block_until_ready(train(keys))

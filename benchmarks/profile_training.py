@@ -36,7 +36,7 @@ import jax.numpy as jnp
 
 from benchmarks.common import machine_info, train_config, write_results
 from jaxnav.config import TrainConfig
-from jaxnav.train import Trainer
+from jaxnav.train import Trainer, jit_training
 
 # kind -> substrings of a kernel's name (first match wins, in this order)
 KINDS: dict[str, tuple[str, ...]] = {
@@ -127,7 +127,7 @@ def profile(config: TrainConfig, iterations: int, repeats: int) -> dict[str, Any
     trainer = Trainer(config)
     state = jax.jit(trainer.init)(jax.random.key(0))
     # with the interval's metrics, as training computes them (without, XLA drops their work)
-    interval = jax.jit(lambda ts: trainer.run(ts, jnp.int32(log), 1))
+    interval = jit_training(lambda ts: trainer.run(ts, jnp.int32(log), 1))
     interval = interval.lower(state).compile()
     for _ in range(2):
         jax.block_until_ready(interval(state))

@@ -40,7 +40,7 @@ from benchmarks.common import machine_info, time_in_turn, write_results
 from benchmarks.env_throughput import ALL_ENVS, prepare
 from jaxnav import run_dir
 from jaxnav.config import TrainConfig
-from jaxnav.train import Trainer
+from jaxnav.train import COMPILER_OPTIONS, Trainer
 
 DEFAULT_OUT = Path("benchmarks/results/scaling.json")
 
@@ -52,7 +52,8 @@ def train_row(label: str, config: TrainConfig, intervals: int) -> dict[str, Any]
     t0 = time.perf_counter()
     init, interval, state_like = trainer.sharded(keys)
     log_like = jax.ShapeDtypeStruct((), np.int32)
-    init, interval = init.lower(keys).compile(), interval.lower(state_like, log_like).compile()
+    init = init.lower(keys).compile(COMPILER_OPTIONS)
+    interval = interval.lower(state_like, log_like).compile(COMPILER_OPTIONS)
     compile_s = time.perf_counter() - t0
     holder = {"state": init(keys), "log": 0}
 

@@ -67,7 +67,7 @@ from jaxnav.agents import dqn
 from jaxnav.agents.dqn import COMPUTE_DTYPES
 from jaxnav.cli import one_line, parse_bool, parse_env_arg
 from jaxnav.config import ALGOS, MAX_STEPS, TrainConfig
-from jaxnav.train import Trainer, TrainState
+from jaxnav.train import Trainer, TrainState, jit_training
 
 DEFAULT_OUT = Path("benchmarks/results/train_throughput.json")
 ROUNDS = 3  # timed calls per program; the median is reported
@@ -123,7 +123,7 @@ def make_config(
 def compile_donating(fn: Callable[[Any, Any], Any], state: Any, arg: Any) -> tuple[Any, float]:
     """``jit(fn, donate_argnums=0)`` lowered and compiled; returns it and the seconds taken."""
     t0 = time.perf_counter()
-    compiled = jax.jit(fn, donate_argnums=0).lower(state, arg).compile()
+    compiled = jit_training(fn, donate_argnums=0).lower(state, arg).compile()
     return compiled, time.perf_counter() - t0
 
 

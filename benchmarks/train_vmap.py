@@ -23,7 +23,7 @@ import numpy as np
 
 from benchmarks.common import machine_info, write_results
 from jaxnav.config import TrainConfig
-from jaxnav.train import Trainer
+from jaxnav.train import Trainer, jit_training
 
 
 def measure(env: str, algo: str, steps: int, repeats: int) -> dict[str, Any]:
@@ -31,8 +31,8 @@ def measure(env: str, algo: str, steps: int, repeats: int) -> dict[str, Any]:
     trainer = Trainer(config)
     key = jax.random.key(0)
     programs = {
-        "jit(train)": (jax.jit(trainer.train), key),
-        "jit(vmap(train))": (jax.jit(jax.vmap(trainer.train)), key[None]),
+        "jit(train)": (jit_training(trainer.train), key),
+        "jit(vmap(train))": (jit_training(jax.vmap(trainer.train)), key[None]),
     }
     rows: dict[str, dict[str, Any]] = {}
     compiled = {}

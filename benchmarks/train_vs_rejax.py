@@ -52,7 +52,7 @@ import optax
 
 from jaxnav.config import TrainConfig
 from jaxnav.evaluate import run_episodes, summarize
-from jaxnav.train import Trainer
+from jaxnav.train import Trainer, jit_training
 from jaxnav.wrappers import GymnaxV0
 
 Side = dict[str, Any]  # one trainer: its compiled interval, state, network and results
@@ -62,9 +62,9 @@ LATE_FRACTION = 0.25  # late_success: the mean over this last fraction of the ev
 def _our_side(trainer: Trainer, key: jax.Array) -> Side:
     c = trainer.config
     t0 = time.perf_counter()
-    init = jax.jit(trainer.init).lower(key).compile()
+    init = jit_training(trainer.init).lower(key).compile()
     state = init(key)
-    interval = jax.jit(lambda ts, log: trainer.run(ts, log, 1), donate_argnums=0)
+    interval = jit_training(lambda ts, log: trainer.run(ts, log, 1), donate_argnums=0)
     interval = interval.lower(state, jnp.int32(0)).compile()
     return {
         "name": f"jaxnav {c.algo.upper()}",

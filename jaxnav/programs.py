@@ -29,7 +29,7 @@ from typing import Any
 import jax
 import numpy as np
 
-from jaxnav.train import Trainer
+from jaxnav.train import Trainer, jit_training
 
 FORMAT = 1  # bump when what is stored changes
 PACKAGES = ("jax", "jaxlib", "flax", "optax", "mujoco", "mujoco-mjx")
@@ -158,7 +158,7 @@ def _jit_exported(exported: jax.export.Exported, mesh: Any, **kwargs: Any) -> An
     """``jit`` of an exported program on ``mesh``'s devices, laid out as it was exported."""
     args, _ = jax.tree.unflatten(exported.in_tree, exported.in_shardings_jax(mesh))
     out = jax.tree.unflatten(exported.out_tree, exported.out_shardings_jax(mesh))
-    return jax.jit(exported.call, in_shardings=args, out_shardings=out, **kwargs)
+    return jit_training(exported.call, in_shardings=args, out_shardings=out, **kwargs)
 
 
 def _key(trainer: Trainer, keys: jax.Array) -> str:

@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 
 from jaxnav.agents import dqn, pqn
 from jaxnav.config import TrainConfig
-from jaxnav.train import Trainer, Transitions
+from jaxnav.train import Trainer, Transitions, jit_training
 from jaxnav.train.__main__ import main as train_main
 
 # TINY_TRAIN as PQN: 4 envs x 2 steps per rollout, 2 minibatches of 4 transitions, 2 epochs
@@ -245,6 +245,18 @@ def test_seeds_give_different_parameters_and_a_seed_repeats_bitwise(pqn_train, p
     # every iteration learned: the loss is logged from the first interval on
     assert (metrics["loss"] > 0).all()
     assert metrics["env_steps"][0].tolist() == [32, 64, 96]
+
+
+def test_training_options_compile_here_and_compute_what_plain_jit_does(pqn_train, pqn_trainer):
+    # ``jit_training`` is how the CLI compiles training: its XLA options must be valid for the
+    # installed jaxlib (an unknown value fails the compile) and change scheduling, not values
+    keys = jax.random.split(jax.random.key(3), 2)
+    plain = jax.device_get(pqn_train(keys))
+    tuned = jax.device_get(jit_training(jax.vmap(pqn_trainer.train))(keys))
+    for leaf, leaf_tuned in zip(jax.tree.leaves(plain), jax.tree.leaves(tuned), strict=True):
+        if jnp.issubdtype(leaf.dtype, jax.dtypes.prng_key):
+            leaf, leaf_tuned = jax.random.key_data(leaf), jax.random.key_data(leaf_tuned)
+        np.testing.assert_array_equal(leaf, leaf_tuned)
 
 
 def test_memory_check_counts_the_rollout_not_a_replay_buffer():
