@@ -71,8 +71,8 @@ def device_kernels(trace: dict[str, Any]) -> list[dict[str, Any]]:
     return [e for e in events if e.get("ph") == "X" and e.get("pid") in devices]
 
 
-def idle_before(kernels: list[dict[str, Any]], between: int = 0) -> dict[str, list[float]]:
-    """Kernel name -> [waits, idle us]: the device's idle time before each kernel started
+def idle_before(kernels: list[dict[str, Any]], between: int = 0) -> list[tuple[str, float]]:
+    """(kernel name, idle us) for each wait: the device's idle time before a kernel started
     (after every earlier kernel had ended), without the ``between`` longest waits."""
     ordered = sorted(kernels, key=lambda e: e["ts"])
     waits, end = [], ordered[0]["ts"]
@@ -80,12 +80,18 @@ def idle_before(kernels: list[dict[str, Any]], between: int = 0) -> dict[str, li
         if e["ts"] > end:
             waits.append((e["ts"] - end, e["name"]))
         end = max(end, e["ts"] + e.get("dur", 0))
-    kept = sorted(waits, reverse=True)[between:]
+    return [(name, us) for us, name in sorted(waits, reverse=True)[between:]]
+
+
+def longest_by_name(times: list[tuple[str, float]], count: str) -> list[dict[str, Any]]:
+    """The ``TOP`` kernel names of most time in ``times`` ((name, us) pairs), each with its
+    kind, its number of pairs (under the key ``count``) and its total us."""
     by_name: dict[str, list[float]] = collections.defaultdict(lambda: [0, 0.0])
-    for us, name in kept:
+    for name, us in times:
         by_name[name][0] += 1
         by_name[name][1] += us
-    return by_name
+    top = sorted(by_name.items(), key=lambda kv: -kv[1][1])[:TOP]
+    return [{"name": n, "kind": kind_of(n), count: int(c), "total_us": t} for n, (c, t) in top]
 
 
 def summarize(kernels: list[dict[str, Any]], repeats: int = 1) -> dict[str, Any]:
@@ -96,27 +102,18 @@ def summarize(kernels: list[dict[str, Any]], repeats: int = 1) -> dict[str, Any]
     start = min(e["ts"] for e in kernels)
     end = max(e["ts"] + e.get("dur", 0) for e in kernels)
     by_kind: dict[str, float] = dict.fromkeys([*KINDS, OTHER], 0.0)
-    by_name: dict[str, list[float]] = collections.defaultdict(lambda: [0, 0.0])
-    for e in kernels:
-        by_kind[kind_of(e["name"])] += e.get("dur", 0)
-        by_name[e["name"]][0] += 1
-        by_name[e["name"]][1] += e.get("dur", 0)
-    busy = sum(by_kind.values())
-    top = sorted(by_name.items(), key=lambda kv: -kv[1][1])[:TOP]
+    durations = [(e["name"], e.get("dur", 0)) for e in kernels]
+    for name, us in durations:
+        by_kind[kind_of(name)] += us
     idle = idle_before(kernels, repeats - 1)
     return {
         "span_us": end - start,
-        "busy_us": busy,
+        "busy_us": sum(by_kind.values()),
         "kernels": len(kernels),
         "by_kind_us": by_kind,
-        "top": [
-            {"name": n, "kind": kind_of(n), "calls": int(c), "total_us": t} for n, (c, t) in top
-        ],
-        "idle_us": sum(t for _, t in idle.values()),
-        "idle_before": [
-            {"name": n, "kind": kind_of(n), "waits": int(c), "total_us": t}
-            for n, (c, t) in sorted(idle.items(), key=lambda kv: -kv[1][1])[:TOP]
-        ],
+        "top": longest_by_name(durations, "calls"),
+        "idle_us": sum(us for _, us in idle),
+        "idle_before": longest_by_name(idle, "waits"),
     }
 
 
@@ -172,23 +169,22 @@ def markdown(result: dict[str, Any]) -> str:
     ]
     for kind, us in sorted(result["by_kind_us"].items(), key=lambda kv: -kv[1]):
         lines.append(f"| {kind} | {us / 1e3:.1f} | {us / busy:.0%} |")
-    lines += ["", "| longest kernels | kind | calls | ms |", "|---|---|---:|---:|"]
-    for t in result["top"]:
-        lines.append(
-            f"| `{t['name'][:70]}` | {t['kind']} | {t['calls']} | {t['total_us'] / 1e3:.1f} |"
-        )
     idle = result["idle_us"]
-    lines += [
-        "",
-        f"Idle within the intervals: {idle / 1e3:.1f} ms ({idle / span:.0%} of the span), "
-        "by the kernel the device waited for:\n",
-        "| idle before | kind | waits | ms |",
-        "|---|---|---:|---:|",
-    ]
-    for t in result["idle_before"]:
-        lines.append(
-            f"| `{t['name'][:70]}` | {t['kind']} | {t['waits']} | {t['total_us'] / 1e3:.1f} |"
-        )
+    tables = (
+        ("", "longest kernels", "calls", result["top"]),
+        (
+            f"Idle within the intervals: {idle / 1e3:.1f} ms ({idle / span:.0%} of the span), "
+            "by the kernel the device waited for:\n",
+            "idle before", "waits", result["idle_before"],
+        ),
+    )  # fmt: skip
+    for intro, heading, count, entries in tables:
+        lines += ["", *([intro] if intro else []), f"| {heading} | kind | {count} | ms |"]
+        lines.append("|---|---|---:|---:|")
+        for t in entries:
+            lines.append(
+                f"| `{t['name'][:70]}` | {t['kind']} | {t[count]} | {t['total_us'] / 1e3:.1f} |"
+            )
     return "\n".join(lines)
 
 
