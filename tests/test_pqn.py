@@ -46,10 +46,10 @@ def reference_lambda_returns(reward, terminated, done, next_value, gamma, lam):
     return g
 
 
-lambda_returns = jax.jit(pqn.lambda_returns)
+lambda_returns = jax.jit(pqn.lambda_returns, static_argnames="unrolled")
 
 
-def returns_of(reward, terminated, done, next_value, gamma, lam) -> np.ndarray:
+def returns_of(reward, terminated, done, next_value, gamma, lam, unrolled=False) -> np.ndarray:
     return np.asarray(
         lambda_returns(
             jnp.asarray(reward, jnp.float32),
@@ -58,6 +58,7 @@ def returns_of(reward, terminated, done, next_value, gamma, lam) -> np.ndarray:
             jnp.asarray(next_value, jnp.float32),
             jnp.float32(gamma),
             jnp.float32(lam),
+            unrolled=unrolled,
         )
     )
 
@@ -78,9 +79,10 @@ TERMINATED[1, 2] = TERMINATED[3, 3] = True
 GAMMA = 0.9
 
 
+@pytest.mark.parametrize("unrolled", [False, True])  # the loop (CPU) or straight-line (GPU)
 @pytest.mark.parametrize("lam", [0.0, 0.3, 0.65, 1.0])
-def test_lambda_returns_match_the_reference_recursion(lam):
-    got = returns_of(REWARD, TERMINATED, DONE, NEXT_VALUE, GAMMA, lam)
+def test_lambda_returns_match_the_reference_recursion(lam, unrolled):
+    got = returns_of(REWARD, TERMINATED, DONE, NEXT_VALUE, GAMMA, lam, unrolled)
     want = reference_lambda_returns(REWARD, TERMINATED, DONE, NEXT_VALUE, GAMMA, lam)
     np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-6)
 
@@ -132,13 +134,16 @@ def test_lambda_1_is_monte_carlo_within_the_rollout_then_bootstrap():
     lam=st.floats(0.0, 1.0),
     seed=st.integers(0, 2**31 - 1),
 )
-def test_lambda_returns_match_the_reference_on_random_rollouts(steps, envs, gamma, lam, seed):
+@pytest.mark.parametrize("unrolled", [False, True])
+def test_lambda_returns_match_the_reference_on_random_rollouts(
+    steps, envs, gamma, lam, seed, unrolled
+):
     rng = np.random.default_rng(seed)
     reward = rng.normal(size=(steps, envs))
     next_value = rng.normal(scale=3.0, size=(steps, envs))
     done = rng.random((steps, envs)) < 0.3
     terminated = done & (rng.random((steps, envs)) < 0.5)  # a terminal state ends the episode
-    got = returns_of(reward, terminated, done, next_value, gamma, lam)
+    got = returns_of(reward, terminated, done, next_value, gamma, lam, unrolled)
     want = reference_lambda_returns(reward, terminated, done, next_value, gamma, lam)
     np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-5)
 
@@ -296,6 +301,27 @@ def test_bfloat16_network_is_float32_network_within_bf16_rounding(layer_norm):
     scale = np.abs(q32).max()
     np.testing.assert_allclose(q16, q32, rtol=2e-2, atol=2e-2 * scale)
     assert not np.array_equal(q16, q32)  # the products did run in bfloat16
+
+
+@pytest.mark.parametrize("norm_impl", ["flax", "fused"])
+@pytest.mark.parametrize("dueling", [False, True])
+def test_acting_weights_cast_once_give_the_same_q_values(norm_impl, dueling):
+    """A rollout acts with ``compute_params``: the hidden weights cast to bfloat16 once, the
+    heads and LayerNorm parameters left in float32, the Q-values bit for bit the same."""
+    net = dqn.QNetwork(
+        4, (64, 32), dueling=dueling, layer_norm=True, compute_dtype="bfloat16",
+        norm_impl=norm_impl,
+    )  # fmt: skip
+    obs = jax.random.normal(jax.random.key(0), (33, 10))
+    params = jax.jit(net.init)(jax.random.key(1), obs)
+    cast = net.compute_params(params)
+    dtypes = {"/".join(k.key for k in path): x.dtype for path, x in jax.tree.leaves_with_path(cast)}
+    assert {k for k, d in dtypes.items() if d == jnp.bfloat16} == {
+        "params/Dense_0/kernel",
+        "params/Dense_1/kernel",
+    }
+    apply = jax.jit(net.apply)
+    np.testing.assert_array_equal(apply(cast, obs), apply(params, obs))
 
 
 def test_bfloat16_pqn_run_trains_without_divergence():

@@ -12,6 +12,7 @@ the random comparisons, and grazing and axis-aligned cases are checked exactly i
 from __future__ import annotations
 
 import math
+from functools import partial
 
 import chex
 import jax
@@ -215,6 +216,32 @@ def test_rays_bulk_random_scenes_vmapped():
         compared += ok.sum()
     assert compared >= 0.99 * n * 7
     assert 0 < (got == MAX_RANGE).mean() < 1  # both hits and misses occurred
+
+
+def test_nearest_box_chain_and_reduction_agree_bit_for_bit():
+    """The chain of minimums a GPU runs and the reduction a CPU runs give the same ranges, on
+    random scenes with rays starting inside boxes, and with no wall slots at all."""
+    rng = np.random.default_rng(1)
+    n, rays = 200, 32
+    origins = rng.uniform(-4, 4, (n, 2)).astype(np.float32)
+    centers = rng.uniform(-4, 4, (n, 39, 2)).astype(np.float32)
+    halves = rng.uniform(0.02, 1.0, (n, 39, 2)).astype(np.float32)
+    active = rng.random((n, 39)) < 0.8
+    heading = rng.uniform(-np.pi, np.pi, (n, rays))
+    dirs = np.stack([np.cos(heading), np.sin(heading)], -1).astype(np.float32)
+    lo, hi = g.box_bounds(centers, halves, active)
+    for walls in (39, 0):
+        forms = [
+            jax.jit(jax.vmap(partial(g.ray_box_distances, max_range=5.0, unrolled=unrolled)))(
+                origins, dirs, lo[:, :walls], hi[:, :walls]
+            )
+            for unrolled in (True, False)
+        ]
+        chex.assert_shape(forms, (n, rays))
+        np.testing.assert_array_equal(*forms)
+    # the scenes hold every case: rays from inside a box, misses, hits in between
+    hits = np.asarray(jax.vmap(partial(g.ray_box_distances, max_range=5.0))(origins, dirs, lo, hi))
+    assert (hits == 0.0).any() and (hits == 5.0).any() and ((hits > 0) & (hits < 5)).any()
 
 
 def test_rays_axis_aligned_grazing_inside_and_inactive():

@@ -114,6 +114,19 @@ class QNetwork(nn.Module):
     mesh: Mesh | None = None  # "pallas" over several devices: each device's rows
     rows_axis: str | None = None  # the mesh axis the rows (envs, batch) are split over
 
+    def compute_params(self, params: Any) -> Any:
+        """``params`` with the hidden layers' weight matrices in ``compute_dtype``, which the
+        network casts them to on every call anyway: applying it to these gives the same
+        values, with the cast done once for many calls (a rollout's acting passes)."""
+        hidden = {f"Dense_{i}" for i in range(len(self.hidden_sizes))}
+        dtype = jnp.dtype(self.compute_dtype)
+
+        def cast(path: tuple, leaf: jax.Array) -> jax.Array:
+            names = [getattr(k, "key", None) for k in path]
+            return leaf.astype(dtype) if names[-1] == "kernel" and hidden & set(names) else leaf
+
+        return jax.tree_util.tree_map_with_path(cast, params)
+
     @nn.compact
     def __call__(self, obs: jax.Array) -> jax.Array:
         if self.onehot_sizes is None:

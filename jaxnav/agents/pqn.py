@@ -20,6 +20,7 @@ def lambda_returns(
     next_value: jax.Array,
     gamma: jax.Array,
     lam: jax.Array,
+    unrolled: bool = False,
 ) -> jax.Array:
     """Targets ``G[t]`` of a rollout laid out [time, env, ...].
 
@@ -32,16 +33,28 @@ def lambda_returns(
 
     so a time limit (``done`` without ``terminated``) bootstraps from the final observation and
     a terminal state does not bootstrap; returns never cross an episode boundary.
+
+    ``unrolled``: the steps as straight-line code rather than a loop, each step's returns
+    stored before the next step reads them (an optimization barrier; without it XLA fuses the
+    whole chain into each later step's kernel, and the GPU compile took 3x as long). On a GPU
+    every trip of a loop costs a round trip to the host, 32 of them per rollout of the
+    RobotNav-v0 preset. The same operations either way.
     """
 
     def back(g_next, step):
         r, term, d, v = step
         mixed = jnp.where(d, v, (1.0 - lam) * v + lam * g_next)
         g = r + gamma * (1.0 - term.astype(r.dtype)) * mixed
+        if unrolled:
+            g = jax.lax.optimization_barrier(g)
         return g, g
 
     # the last step bootstraps fully: its "G[T]" is its own next value
     _, returns = jax.lax.scan(
-        back, next_value[-1], (reward, terminated, done, next_value), reverse=True
+        back,
+        next_value[-1],
+        (reward, terminated, done, next_value),
+        reverse=True,
+        unroll=unrolled,
     )
     return returns

@@ -179,6 +179,15 @@ class Trainer:
         The DQN's updates stay rolled: unrolled they ran slower."""
         return min(num_minibatches, 8) if jax.default_backend() == "gpu" else 1
 
+    @staticmethod
+    def rollout_unrolled() -> bool:
+        """Whether PQN's rollout loop runs two env steps a trip and its lambda-returns run as
+        straight-line code: on a GPU, where a loop's trip costs a round trip to the host
+        (RobotNav-v0's preset: an iteration 30.4 ms against 31.5 with the acting weights cast
+        once a rollout, benchmarks/RESULTS.md), for a few seconds more compile; on a CPU
+        rolled loops, whose trips cost nothing to speak of, and the shorter compile."""
+        return jax.default_backend() == "gpu"
+
     @property
     def network_input(self) -> dqn.InputSpec:
         """What the network reads: ``(obs_size, onehot_sizes)``."""
@@ -337,14 +346,19 @@ class Trainer:
         return self.gradient_step(ts, batch, self.minibatch_loss(ts))
 
     def _env_step(
-        self, ts: TrainState, keys: tuple[jax.Array, jax.Array, jax.Array], eps: jax.Array
+        self,
+        ts: TrainState,
+        keys: tuple[jax.Array, jax.Array, jax.Array],
+        eps: jax.Array,
+        acting_params: Any,
     ) -> tuple[TrainState, tuple[Transitions, jax.Array, dict]]:
-        """One epsilon-greedy step of every env: the new state, the transitions, whether the
-        acting Q-values were finite, and episode statistics (per env: summed after the
-        rollout, once an iteration)."""
+        """One epsilon-greedy step of every env, acting with ``acting_params`` (``ts.params``,
+        or them as ``QNetwork.compute_params`` casts them): the new state, the transitions,
+        whether the acting Q-values were finite, and episode statistics (per env: summed
+        after the rollout, once an iteration)."""
         c = self.config
         k_act, k_eps, k_step = keys
-        q = self.learner_network.apply(ts.params, ts.obs)
+        q = self.learner_network.apply(acting_params, ts.obs)
         explore = jax.random.uniform(k_eps, (c.num_envs,)) < eps
         random_action = jax.random.randint(k_act, (c.num_envs,), 0, self.env.num_actions)
         action = jnp.where(explore, random_action, jnp.argmax(q, axis=-1))
@@ -470,7 +484,13 @@ class Trainer:
         c, hp = self.config, ts.hparams
         next_value = self.next_values(ts.params, tr, ts.obs)
         targets = pqn.lambda_returns(
-            tr.reward, tr.terminated, tr.done, next_value, hp.gamma, hp.td_lambda
+            tr.reward,
+            tr.terminated,
+            tr.done,
+            next_value,
+            hp.gamma,
+            hp.td_lambda,
+            unrolled=self.rollout_unrolled(),
         )
         n = c.steps_per_iteration
         data = (
@@ -506,16 +526,19 @@ class Trainer:
         if c.algo == "dqn":
             key, k_act, k_eps, k_step, k_learn = jax.random.split(ts.key, 5)
             eps = jnp.where(env_steps >= c.learning_start_steps, self.epsilon(hp, env_steps), 1.0)
-            ts, collected = self._env_step(ts, (k_act, k_eps, k_step), eps)
+            ts, collected = self._env_step(ts, (k_act, k_eps, k_step), eps, ts.params)
             tr, q_finite, stats = jax.tree.map(lambda x: x[None], collected)
             ts, aux = self._dqn_learn(ts.replace(key=key), tr, env_steps, k_learn)
         else:
             key, k_roll, k_learn = jax.random.split(ts.key, 3)
             eps = self.epsilon(hp, env_steps)
+            # the parameters do not change within a rollout: cast once for its acting passes
+            acting = self.network.compute_params(ts.params)
             ts, (tr, q_finite, stats) = jax.lax.scan(
-                lambda ts, k: self._env_step(ts, tuple(jax.random.split(k, 3)), eps),
+                lambda ts, k: self._env_step(ts, tuple(jax.random.split(k, 3)), eps, acting),
                 ts,
                 jax.random.split(k_roll, c.rollout_length),
+                unroll=2 if self.rollout_unrolled() else 1,
             )
             ts, aux = self._pqn_learn(ts.replace(key=key), tr, k_learn)
         stats = jax.tree.map(jnp.sum, stats)

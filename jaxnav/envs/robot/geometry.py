@@ -22,6 +22,7 @@ boxes as corners ``lo, hi`` (``box_bounds``), computed once per maze bank.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import jax
@@ -81,6 +82,7 @@ def ray_box_distances(
     lo: jax.Array,
     hi: jax.Array,
     max_range: float | jax.Array,
+    unrolled: bool | None = None,
 ) -> jax.Array:
     """Distance along each ray to the nearest box, clipped to ``max_range``.
 
@@ -97,14 +99,22 @@ def ray_box_distances(
     exactly along a face: it hits the box along the face it would enter by that tilt (the
     bottom face for a rightward ray) and misses it along the opposite one. Rays that hit
     nothing within ``max_range`` return exactly ``max_range``.
+
+    ``unrolled`` picks how the nearest box is found, with the same result bit for bit (a
+    minimum is exact in any order): a reduction over the boxes (``False``), or a chain of
+    elementwise minimums box after box (``True``), which XLA runs on a GPU as one elementwise
+    kernel over the rays, 1.3-1.4x the env steps/s of RobotNav-v0 there, while on a CPU it
+    halves them. ``None``: the chain except on a CPU.
     """
+    if unrolled is None:
+        unrolled = jax.default_backend() != "cpu"
     origin = jnp.asarray(origin, jnp.float32)
     d = jnp.asarray(directions, jnp.float32)
     tilt = jnp.where(jnp.signbit(d), -_PARALLEL_EPS, _PARALLEL_EPS)
     inv = 1.0 / jnp.where(jnp.abs(d) < _PARALLEL_EPS, tilt, d)  # [R, 2]
     # boxes on the leading axis, rays minor: the nearest box is then a reduction over a major
     # axis, which XLA's CPU backend vectorizes over the rays (RobotNav-v0's 32 rays and 39
-    # boxes step faster; a GPU runs both layouts alike)
+    # boxes step faster), or a chain over slices of whole rays
     t1 = (jnp.asarray(lo, jnp.float32)[:, None] - origin) * inv  # [W, R, 2]
     t2 = (jnp.asarray(hi, jnp.float32)[:, None] - origin) * inv
     t_near = jnp.minimum(t1, t2)
@@ -115,7 +125,12 @@ def ray_box_distances(
     enter = jnp.maximum(t_near[..., 0], t_near[..., 1])  # [W, R]
     leave = jnp.minimum(t_far[..., 0], t_far[..., 1])
     dist = jnp.where((enter <= leave) & (leave >= 0.0), jnp.maximum(enter, 0.0), _FAR)
-    return jnp.minimum(jnp.min(dist, axis=0, initial=_FAR), jnp.asarray(max_range, jnp.float32))
+    if unrolled:
+        far = jnp.full(dist.shape[1:], _FAR, jnp.float32)
+        nearest = functools.reduce(jnp.minimum, list(dist), far)
+    else:
+        nearest = jnp.min(dist, axis=0, initial=_FAR)
+    return jnp.minimum(nearest, jnp.asarray(max_range, jnp.float32))
 
 
 def lasers(
