@@ -180,12 +180,13 @@ class Trainer:
         return min(num_minibatches, 8) if jax.default_backend() == "gpu" else 1
 
     @staticmethod
-    def rollout_unrolled() -> bool:
-        """Whether PQN's rollout loop runs two env steps a trip and its lambda-returns run as
-        straight-line code: on a GPU, where a loop's trip costs a round trip to the host
-        (RobotNav-v0's preset: an iteration 30.4 ms against 31.5 with the acting weights cast
-        once a rollout, benchmarks/RESULTS.md), for a few seconds more compile; on a CPU
-        rolled loops, whose trips cost nothing to speak of, and the shorter compile."""
+    def returns_unrolled() -> bool:
+        """Whether PQN's lambda-returns run as straight-line code (``pqn.lambda_returns``'s
+        ``unrolled``): on a GPU, where each trip of the loop costs a round trip to the host,
+        at no measurable cost in compile time; on a CPU the loop, whose trips cost nothing to
+        speak of. The rollout's own loop stays rolled: two env steps a trip saved about 0.7
+        ms of RobotNav-v0's 31 ms iteration for about 5 s more compile, a loss below billions
+        of env steps (benchmarks/RESULTS.md)."""
         return jax.default_backend() == "gpu"
 
     @property
@@ -490,7 +491,7 @@ class Trainer:
             next_value,
             hp.gamma,
             hp.td_lambda,
-            unrolled=self.rollout_unrolled(),
+            unrolled=self.returns_unrolled(),
         )
         n = c.steps_per_iteration
         data = (
@@ -538,7 +539,6 @@ class Trainer:
                 lambda ts, k: self._env_step(ts, tuple(jax.random.split(k, 3)), eps, acting),
                 ts,
                 jax.random.split(k_roll, c.rollout_length),
-                unroll=2 if self.rollout_unrolled() else 1,
             )
             ts, aux = self._pqn_learn(ts.replace(key=key), tr, k_learn)
         stats = jax.tree.map(jnp.sum, stats)
