@@ -103,7 +103,7 @@ def ray_box_distances(
     ``unrolled`` picks how the nearest box is found, with the same result bit for bit (a
     minimum is exact in any order): a reduction over the boxes (``False``), or a chain of
     elementwise minimums box after box (``True``), which XLA runs on a GPU as one elementwise
-    kernel over the rays, 1.3-1.4x the env steps/s of RobotNav-v0 there, while on a CPU it
+    kernel over the rays, 1.3-1.5x the env steps/s of RobotNav-v0 there, while on a CPU it
     halves them. ``None``: the chain except on a CPU.
     """
     if unrolled is None:
