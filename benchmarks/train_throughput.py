@@ -99,21 +99,28 @@ def make_config(
     config = TrainConfig.for_env(
         env, algo=algo, env_kwargs=dict(env_kwargs), num_envs=num_envs, **given
     )
+    return timed_config(config, iterations, ROUNDS)
+
+
+def timed_config(config: TrainConfig, iterations: int, rounds: int) -> TrainConfig:
+    """``config`` with a logging interval of ``iterations`` iterations, room for an untimed
+    call and ``rounds`` timed ones after the first interval that learns, and, for DQN,
+    learning from the first iteration on."""
     extra: dict[str, Any] = {"log_interval": iterations * config.steps_per_iteration}
-    if algo == "dqn":
-        starts = num_envs * config.n_step
+    if config.algo == "dqn":
+        starts = config.num_envs * config.n_step
         extra |= {
             "learning_starts": starts,
             "buffer_size": max(config.buffer_size, starts, config.batch_size),
         }
     config = dataclasses.replace(config, **extra)
     # room for the untimed call and the timed ones (the learning-rate schedule spans them)
-    runs = first_timed_log(config) + ROUNDS + 1
+    runs = first_timed_log(config) + rounds + 1
     if runs * config.steps_per_log > MAX_STEPS:
         raise ValueError(
-            f"num_envs={num_envs}, --iterations {iterations}: the {runs} runs of {algo} would "
-            f"take {runs * config.steps_per_log} env steps, more than the {MAX_STEPS} that "
-            "training counts (int32); use fewer iterations"
+            f"num_envs={config.num_envs}, --iterations {iterations}: the {runs} runs of "
+            f"{config.algo} would take {runs * config.steps_per_log} env steps, more than the "
+            f"{MAX_STEPS} that training counts (int32); use fewer iterations"
         )
     config = dataclasses.replace(config, total_timesteps=runs * config.steps_per_log)
     config.validate()
