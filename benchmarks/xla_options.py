@@ -20,8 +20,8 @@ is a row with its error, and its times are n/a.
 
 Default variants: ``shipped`` (no flag added) and ``while loops as graph nodes``
 (``--xla_gpu_enable_command_buffer=+WHILE,+CONDITIONAL``: on a GPU, loops and conditionals go
-into the command buffers as CUDA graph nodes, so a loop's trip needs no round trip to the
-host). Backends other than the GPU ignore XLA:GPU's flags.
+into the command buffers as CUDA graph nodes, where the host otherwise launches each trip of
+a loop after reading its condition). Backends other than the GPU ignore XLA:GPU's flags.
 
 Writes the JSON and a markdown table beside it (``.md``).
 """
