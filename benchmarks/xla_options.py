@@ -38,6 +38,9 @@ import sys
 from pathlib import Path
 from typing import Any
 
+# jax and jaxnav are imported inside the functions: the parent process must set JAX_PLATFORMS
+# before jax starts (``main``), and each child starts jax under its own XLA_FLAGS
+
 DEFAULT_OUT = Path("benchmarks/results/xla_options.json")
 DEFAULT_CONFIG = '{"env": "RobotNav-v0", "algo": "pqn"}'
 DEFAULT_VARIANTS = (
