@@ -82,7 +82,6 @@ def child(spec: dict[str, Any]) -> dict[str, Any]:
         "steps_per_iteration": c.steps_per_iteration,
         "updates_per_iteration": c.updates_per_learning_iteration,
         "ms_per_iteration": ms,
-        "env_steps_per_s": c.steps_per_iteration / statistics.median(ms) * 1e3,
     } | program.record()
 
 
@@ -112,17 +111,18 @@ def summarize(variants: list[tuple[str, str]], runs: dict[str, list[dict]]) -> l
     """A row per variant: its processes, median time, speed-up over the first variant."""
     rows = []
     for name, flags in variants:
+        per_process = [
+            statistics.median(r["ms_per_iteration"]) if "error" not in r else None
+            for r in runs[name]
+        ]
         ok = [r for r in runs[name] if "error" not in r]
-        ms = statistics.median(statistics.median(r["ms_per_iteration"]) for r in ok) if ok else None
+        ms = statistics.median(x for x in per_process if x is not None) if ok else None
         rows.append(
             {
                 "variant": name,
                 "flags": flags,
                 "ms_per_iteration": ms,
-                "ms_per_process": [
-                    statistics.median(r["ms_per_iteration"]) if "error" not in r else None
-                    for r in runs[name]
-                ],
+                "ms_per_process": per_process,
                 "compile_s": [r.get("compile_s") for r in runs[name]],
                 "env_steps_per_s": ok[0]["steps_per_iteration"] / ms * 1e3 if ok else None,
                 "errors": sorted({r["error"] for r in runs[name] if "error" in r}),
@@ -170,13 +170,6 @@ def markdown(result: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-class Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> None:  # one line, exit code 2, no usage dump
-        from jaxnav.cli import one_line
-
-        self.exit(2, f"{self.prog}: error: {one_line(message)}\n")
-
-
 def parse_variant(text: str) -> tuple[str, str]:
     name, sep, flags = text.partition("=")
     if not sep or not name.strip():
@@ -185,6 +178,9 @@ def parse_variant(text: str) -> tuple[str, str]:
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    from benchmarks.common import train_config
+    from benchmarks.train_throughput import Parser, timed_config  # one-line errors, exit 2
+
     p = Parser(prog="python -m benchmarks.xla_options", description=__doc__.splitlines()[0])
     p.add_argument("--config", default=DEFAULT_CONFIG, help="JSON object of TrainConfig fields")
     p.add_argument("--iterations", type=int, default=4, help="iterations a timed call")
@@ -206,9 +202,6 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     names = [name for name, _ in args.variant]
     if len(set(names)) < len(names):
         p.error(f"--variant names {', '.join(names)}: each name once")
-    from benchmarks.common import train_config
-    from benchmarks.train_throughput import timed_config
-
     try:  # the config is checked here, before any process starts
         config = timed_config(train_config(args.config), args.iterations, args.rounds)
     except (ValueError, TypeError) as e:
