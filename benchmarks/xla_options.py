@@ -18,10 +18,11 @@ machine's load hits every variant alike; the speed-up is the first variant's tim
 variant's. A process that fails (an unknown flag, a compile or run-time error, the timeout)
 is a row with its error, and its times are n/a.
 
-Default variants: ``shipped`` (no flag added) and ``while loops as graph nodes``
-(``--xla_gpu_enable_command_buffer=+WHILE,+CONDITIONAL``: on a GPU, loops and conditionals go
-into the command buffers as CUDA graph nodes, where the host otherwise launches each trip of
-a loop after reading its condition). Backends other than the GPU ignore XLA:GPU's flags.
+Default variants: ``shipped`` (no flag added) and ``every command sequence a graph``
+(``--xla_gpu_graph_min_graph_size=1``: XLA:GPU records runs of fewer than 5 commands as plain
+launches, not command buffers, by default). Backends other than the GPU ignore XLA:GPU's
+flags. An option that ``COMPILER_OPTIONS`` sets cannot be varied here: options given to the
+compiler override ``XLA_FLAGS``, so such a variant is refused.
 
 Writes the JSON and a markdown table beside it (``.md``).
 """
@@ -45,7 +46,7 @@ DEFAULT_OUT = Path("benchmarks/results/xla_options.json")
 DEFAULT_CONFIG = '{"env": "RobotNav-v0", "algo": "pqn"}'
 DEFAULT_VARIANTS = (
     "shipped=",
-    "while loops as graph nodes=--xla_gpu_enable_command_buffer=+WHILE,+CONDITIONAL",
+    "every command sequence a graph=--xla_gpu_graph_min_graph_size=1",
 )
 
 
@@ -187,8 +188,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--rounds", type=int, default=5, help="timed calls a process")
     p.add_argument("--repeats", type=int, default=1, help="processes a variant, in turn")
     p.add_argument("--variant", type=parse_variant, action="append", metavar="NAME=FLAGS",
-                   help="repeatable; the first is the baseline (default: shipped, and while "
-                   "loops as graph nodes)")  # fmt: skip
+                   help="repeatable; the first is the baseline (default: shipped, and every "
+                   "command sequence a graph)")  # fmt: skip
     p.add_argument("--timeout", type=float, default=600.0, help="seconds a process, at most")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", type=Path, default=DEFAULT_OUT, help="JSON output path")
@@ -202,6 +203,14 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     names = [name for name, _ in args.variant]
     if len(set(names)) < len(names):
         p.error(f"--variant names {', '.join(names)}: each name once")
+    from jaxnav.train import COMPILER_OPTIONS
+
+    for name, flags in args.variant:
+        for flag in shlex.split(flags):
+            option = flag.lstrip("-").partition("=")[0]
+            if option in COMPILER_OPTIONS:
+                p.error(f"--variant {name}={flags}: {option} is set by jaxnav.train."
+                        "COMPILER_OPTIONS, which overrides XLA_FLAGS; change it there")  # fmt: skip
     try:  # the config is checked here, before any process starts
         config = timed_config(train_config(args.config), args.iterations, args.rounds)
     except (ValueError, TypeError) as e:

@@ -47,6 +47,10 @@ def test_variants_are_timed_apart_and_a_failing_one_is_a_row(tmp_path: Path) -> 
         (["--variant", "a=", "--variant", "a=--x"], "each name once"),
         (["--rounds", "0"], "--rounds 0: must be >= 1"),
         (["--config", '{"num_envs": 0}'], '--config {"num_envs": 0}: '),
+        (
+            ["--variant", "graphs=--xla_gpu_enable_command_buffer=FUSION"],
+            "xla_gpu_enable_command_buffer is set by jaxnav.train.COMPILER_OPTIONS",
+        ),
     ],
 )
 def test_bad_arguments_are_one_line_errors(argv, named, capsys) -> None:

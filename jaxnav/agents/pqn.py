@@ -58,3 +58,26 @@ def lambda_returns(
         unroll=unrolled,
     )
     return returns
+
+
+def shuffled_rows(key: jax.Array, n: int, rounds: int = 4) -> jax.Array:
+    """A random order of ``range(n)`` (int32), one epoch's minibatch rows.
+
+    Where ``n`` is a power of two (every preset's rollout), a keyed bijection of the ``b``-bit
+    row indices computed elementwise: ``rounds`` rounds of xor with a random key, product with
+    a random odd number and xor with the upper half shifted down, each a bijection modulo
+    ``2**b`` (the product carries low bits up, the shift high bits down). It replaces the two
+    radix sorts of ``jax.random.permutation`` (of 262,144 rows an epoch in RobotNav-v0's
+    preset: about 0.1 ms each on an H100, at every epoch's start). Other ``n`` take
+    ``jax.random.permutation``.
+    """
+    if n & (n - 1):
+        return jax.random.permutation(key, n).astype(jnp.int32)
+    bits = n.bit_length() - 1
+    mask = jnp.uint32(n - 1)
+    shift = max(1, (bits + 1) // 2)
+    x = jnp.arange(n, dtype=jnp.uint32)
+    for mixer, odd in jax.random.bits(key, (rounds, 2), jnp.uint32):
+        x = ((x ^ mixer) * (odd | 1)) & mask
+        x = x ^ (x >> shift)
+    return x.astype(jnp.int32)

@@ -64,8 +64,17 @@ DIVERGENCE_QUANTITIES = ("q_values", "loss", "params")
 # pass's two products per layer). The same kernels compute the same values. On one H100 it
 # shortened an iteration of RobotNav-v0's PQN preset from 36.0 to 32.4 ms, of GridMaze-v0's
 # from 1.66 to 1.41 ms, of RobotNav-v0's DQN preset from 0.27 to 0.19 ms (benchmarks/RESULTS.md).
+# The command buffers also take loops and conditionals (WHILE, CONDITIONAL) as CUDA graph nodes,
+# so the device runs the rollout's and the epochs' trips without the host launching each one:
+# 31.0 -> 29.3 ms an iteration of RobotNav-v0's PQN preset (benchmarks.xla_options). Options
+# given here replace XLA's default list, which the first six entries repeat.
 # Other backends ignore XLA:GPU's options.
-COMPILER_OPTIONS = {"xla_gpu_command_buffer_scheduling_mode": "CONCURRENT"}
+COMPILER_OPTIONS = {
+    "xla_gpu_command_buffer_scheduling_mode": "CONCURRENT",
+    "xla_gpu_enable_command_buffer": (
+        "FUSION,CUBLAS,CUBLASLT,CUSTOM_CALL,CUDNN,DYNAMIC_SLICE_FUSION,WHILE,CONDITIONAL"
+    ),
+}
 
 
 def jit_training(fun: Callable, **kwargs: Any) -> Any:
@@ -503,7 +512,7 @@ class Trainer:
 
         def epoch(ts, k):
             # each step gathers its own rows: no shuffled copy of the whole rollout an epoch
-            order = jax.random.permutation(k, n).reshape(c.num_minibatches, -1)
+            order = pqn.shuffled_rows(k, n).reshape(c.num_minibatches, -1)
             return jax.lax.scan(
                 lambda ts, rows: self.gradient_step(
                     ts, jax.tree.map(lambda x: x[rows], data), loss_fn
