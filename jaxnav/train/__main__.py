@@ -313,7 +313,8 @@ def _main(argv: Sequence[str] | None, locks: list[run_dir.RunLock]) -> int:
     runner.print_primary(
         f"training {config.env} for {config.total_timesteps:,} steps x {config.num_seeds} "
         f"seed(s), {config.num_envs} envs each on {config.devices} device(s) -> {out}\n"
-        f"checkpoint every {every * steps_per_log:,} env steps in {partial}; "
+        f"a progress line every {steps_per_log:,} env steps (--log-interval), a checkpoint "
+        f"every {every * steps_per_log:,} in {partial}; "
         f"if stopped, continue with: {resume}",
         flush=True,
     )
