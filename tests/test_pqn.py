@@ -220,11 +220,11 @@ def test_next_values_read_final_observations_where_the_time_limit_cut(next_value
 
 
 # ------------------------------------------------------------------ minibatch order
-@settings(max_examples=30, deadline=None)
-@given(n=st.integers(1, 5000), seed=st.integers(0, 2**31 - 1))
+@settings(max_examples=15, deadline=None)
+@given(n=st.sampled_from([1, 2, 3, 8, 1000, 1024, 4096, 4097]), seed=st.integers(0, 2**31 - 1))
 def test_shuffled_rows_visit_every_row_once(n, seed):
     """Each epoch's order is a permutation, for powers of two (the sort-free bijection) and
-    other row counts (``jax.random.permutation``) alike."""
+    other row counts (``jax.random.permutation``) alike. Few row counts: each one compiles."""
     order = np.asarray(pqn.shuffled_rows(jax.random.key(seed), n))
     assert order.dtype == np.int32
     np.testing.assert_array_equal(np.sort(order), np.arange(n))
