@@ -7,7 +7,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 ARGS ?=
 
-.PHONY: train test lint bench notebooks clean
+.PHONY: train test test-slow lint bench notebooks clean
 
 $(BIN)/python:
 	@$(PYTHON) -c 'import sys; sys.exit(sys.version_info < (3, 11))' 2>/dev/null || { \
@@ -28,9 +28,14 @@ $(VENV)/.installed-%: pyproject.toml | $(BIN)/python
 train: $(VENV)/.installed-core
 	$(BIN)/python -m jaxnav.train $(ARGS)
 
+# the fast tier; test-slow runs the end-to-end tests (tests/conftest.py: SLOW_MODULES and the
+# tests marked slow), and CI runs both
 test: $(VENV)/.installed-dev,bench
 	$(BIN)/python -m ruff check jaxnav tests benchmarks
-	$(BIN)/python -m pytest -n 2 --dist loadgroup $(ARGS)
+	$(BIN)/python -m pytest -n 2 --dist loadgroup -m "not slow" $(ARGS)
+
+test-slow: $(VENV)/.installed-dev,bench
+	$(BIN)/python -m pytest -n 2 --dist loadgroup -m slow $(ARGS)
 
 lint: $(VENV)/.installed-dev
 	$(BIN)/python -m ruff check jaxnav tests benchmarks

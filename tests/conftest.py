@@ -23,6 +23,28 @@ from jaxnav.train import Trainer  # noqa: E402
 
 MAZE_SIZE = 7
 
+# The slow tier (``make test-slow``; CI runs both tiers, ``make test`` the fast one): tests that
+# run whole programs end to end, in other processes (the CLI, two processes as one run, the
+# notebooks, the benchmarks' smoke runs) or through the caches and recovery paths, each
+# compiling and running programs of its own. Besides these modules, the tests marked
+# ``@pytest.mark.slow`` where they are written.
+SLOW_MODULES = {
+    "test_benchmarks_smoke.py",
+    "test_compare_smoke.py",
+    "test_experiments.py",
+    "test_multihost.py",
+    "test_notebooks.py",
+    "test_programs.py",
+    "test_train_throughput_smoke.py",
+    "test_xla_options_smoke.py",
+}
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    for item in items:
+        if item.path.name in SLOW_MODULES:
+            item.add_marker(pytest.mark.slow)
+
 
 @pytest.fixture(scope="session")
 def open_maze():

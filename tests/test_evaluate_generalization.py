@@ -230,6 +230,7 @@ def test_evaluate_cli_prints_worst_ten_percent_per_maze(robot_run, tmp_path, cap
     assert result["mean_path_ratio"] is None or result["mean_path_ratio"] > 0
 
 
+@pytest.mark.slow
 def test_generalization_writes_a_table_per_family(robot_run, tmp_path, capsys):
     out = tmp_path / "gen"
     rooms = Path(__file__).parents[1] / "examples" / "mazes" / "rooms.txt"

@@ -215,6 +215,7 @@ def test_robot_reset_to_refuses_a_pose_in_a_wall_or_off_the_arena():
     env.reset_to(key, params, np.array([*free_xy[0], 0.0]), free_xy[1])  # free: fine
 
 
+@pytest.mark.slow
 # ------------------------------------------------------------------ 7. signal while finishing
 def test_sigterm_during_the_final_evaluation_exits_143_and_resume_completes(
     tmp_path, capsys, monkeypatch
@@ -262,6 +263,7 @@ class Planted:
         return (Path.touch, (self.marker,))
 
 
+@pytest.mark.slow
 def test_a_cache_directory_others_can_write_is_not_used_and_nothing_is_unpickled(
     tmp_path, capsys, monkeypatch
 ):

@@ -44,6 +44,7 @@ def robot_run(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow
 def test_render_draws_the_maze_file_it_is_given(robot_run, monkeypatch, tmp_path):
     drawn = []
     monkeypatch.setattr(
@@ -174,6 +175,7 @@ def test_no_final_evaluation_finishes_with_nulls_not_zeros(tmp_path, capsys):
     assert summary["trained"] is summary["random_policy"] is summary["trained_per_seed"] is None
 
 
+@pytest.mark.slow
 def test_robot_evaluation_measures_path_ratio_or_says_n_a(robot_run, capsys):
     assert evaluate_main([str(robot_run), "--episodes", "20"]) == 0
     result = json.loads((robot_run / "eval.json").read_text())
@@ -285,6 +287,7 @@ def test_step_ticks_are_few_and_short():
     plt.close(fig)
 
 
+@pytest.mark.slow
 def test_pictures_for_papers_vector_legend_outside_metre_scale_visible_robot(robot_run, tmp_path):
     import matplotlib
 

@@ -17,6 +17,7 @@ FRESH_EPISODES = 200
 FRESH_SEED = 31_337  # not the manifest's test episodes
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", pretrained.names())
 def test_shipped_policy_meets_its_stated_success(name):
     entry = pretrained.entry(name)
