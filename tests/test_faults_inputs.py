@@ -215,8 +215,8 @@ def test_robot_reset_to_refuses_a_pose_in_a_wall_or_off_the_arena():
     env.reset_to(key, params, np.array([*free_xy[0], 0.0]), free_xy[1])  # free: fine
 
 
-@pytest.mark.slow
 # ------------------------------------------------------------------ 7. signal while finishing
+@pytest.mark.slow
 def test_sigterm_during_the_final_evaluation_exits_143_and_resume_completes(
     tmp_path, capsys, monkeypatch
 ):

@@ -65,8 +65,10 @@ DIVERGENCE_QUANTITIES = ("q_values", "loss", "params")
 # shortened an iteration of RobotNav-v0's PQN preset from 36.0 to 32.4 ms, of GridMaze-v0's
 # from 1.66 to 1.41 ms, of RobotNav-v0's DQN preset from 0.27 to 0.19 ms (benchmarks/RESULTS.md).
 # The command buffers also take loops and conditionals (WHILE, CONDITIONAL) as CUDA graph nodes,
-# so the device runs the rollout's and the epochs' trips without the host launching each one:
-# 31.0 -> 29.3 ms an iteration of RobotNav-v0's PQN preset (benchmarks.xla_options). Options
+# so the device runs the epochs' and minibatches' trips without the host launching each one:
+# 31.0 -> 29.3 ms an iteration of RobotNav-v0's PQN preset (benchmarks.xla_options). The
+# rollout's loop and the loop of iterations stay with the host: XLA copies their stacked rows
+# by memcpys the host issues (benchmarks/RESULTS.md: one graph for all was no faster). Options
 # given here replace XLA's default list, which the first six entries repeat.
 # Other backends ignore XLA:GPU's options.
 COMPILER_OPTIONS = {
