@@ -5,6 +5,7 @@
         [--train-networks 512,256,128,64;64,64] [--train-seeds 0] [--eval-episodes 256]
         [--threshold 0.95]
         [--sections env,train,compile] [--out benchmarks/results/compare.json]
+    python -m benchmarks.compare --render --out RESULT.json
 
 Sections (each can be left out with ``--sections``):
 
@@ -27,6 +28,8 @@ Sections (each can be left out with ``--sections``):
   compilation cache (``benchmarks.compile_time``).
 
 Writes the JSON, a markdown copy of the tables (same name, ``.md``) and the plot (``.png``).
+``--render`` measures nothing: it writes the markdown of an earlier run's JSON (``--out``) again
+with the tables of this version.
 Nothing here assumes a CPU: on a GPU pass larger sizes, e.g. ``--num-envs
 1024,16384,262144``.
 """
@@ -35,6 +38,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import os
 import resource
 import sys
@@ -218,7 +222,14 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--compile-timesteps", type=int, default=16_000, help="steps per CLI run")
     p.add_argument("--sections", default=",".join(SECTIONS), help=f"comma-separated {SECTIONS}")
     p.add_argument("--out", type=Path, default=DEFAULT_OUT, help="JSON output path")
+    p.add_argument(
+        "--render", action="store_true", help="rewrite --out's markdown, measure nothing"
+    )
     args = p.parse_args(argv)
+    if args.render:
+        if not args.out.is_file():
+            p.error(f"--render --out {args.out}: no such result file")
+        return args
     try:
         args.num_envs = [int(n) for n in args.num_envs.split(",") if n.strip()]
     except ValueError:
@@ -250,9 +261,44 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     return args
 
 
+def markdown(result: dict[str, Any]) -> str:
+    """The tables of a run's result: each section it has."""
+    parts = []
+    if "env" in result:
+        parts.append("### Env steps/s\n\n" + env_tables(result["env"]))
+    if "train" in result:
+        for run in result["train"]:
+            config = run["config"]
+            parts.append(
+                f"### {config['algo'].upper()} training, {config['env']}, "
+                f"{config['total_timesteps']:,} env steps, network "
+                f"{'-'.join(map(str, run['hidden_sizes']))}, seed {run['seed']}\n\n"
+                + train_vs_rejax.table(run)
+            )
+        algo = result["train"][0]["config"]["algo"].upper()
+        parts.append(
+            f"### {algo} training, each network\n\n" + train_vs_rejax.summary(result["train"])
+        )
+    if "compile" in result:
+        parts.append("### CLI start-up\n\n" + compile_time.table(result["compile"]))
+    return "\n\n".join(parts)
+
+
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Run the chosen sections, print the tables, write JSON, markdown and the plot."""
     args = parse_args(argv)
+    if args.render:
+        try:
+            result = json.loads(args.out.read_text())
+            md = markdown(result)
+        except (ValueError, KeyError, TypeError) as e:
+            print(
+                f"--render --out {args.out}: not a result of this benchmark ({e!r})",
+                file=sys.stderr,
+            )
+            raise SystemExit(2) from None
+        args.out.with_suffix(".md").write_text(md + "\n")
+        return result
     info = machine_info() | {
         "versions": {
             d: package_version(d) for d in ("navix", "jaxmarl", "rejax", "mujoco-mjx", "flax")
@@ -260,10 +306,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     }
     command = " ".join(["python -m benchmarks.compare", *(sys.argv[1:] if argv is None else argv)])
     result: dict[str, Any] = {"machine": info, "command": command}
-    parts = []
     if "env" in args.sections:
         result["env"] = env_section(args)
-        parts.append("### Env steps/s\n\n" + env_tables(result["env"]))
     if "train" in args.sections:
         result["train"] = []
         for hidden_sizes in args.train_networks:
@@ -271,25 +315,15 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             for seed in args.train_seeds:
                 run = train_vs_rejax.measure(config, args.eval_episodes, args.threshold, seed)
                 result["train"].append(run | {"config": dataclasses.asdict(config)})
-                parts.append(
-                    f"### {config.algo.upper()} training, {config.env}, "
-                    f"{config.total_timesteps:,} env steps, network "
-                    f"{'-'.join(map(str, hidden_sizes))}, seed {seed}\n\n"
-                    + train_vs_rejax.table(run)
-                )
-        summary = train_vs_rejax.summary(result["train"])
-        algo = args.train_config.algo.upper()
-        parts.append(f"### {algo} training, each network\n\n" + summary)
     if "compile" in args.sections:
         entries = list(compile_time.ENTRIES)
         result["compile"] = compile_time.measure(entries, args.compile_timesteps)
-        parts.append("### CLI start-up\n\n" + compile_time.table(result["compile"]))
     info["loadavg_1m_at_end"] = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
     info["max_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     info["device_memory"] = [
         d.memory_stats() for d in jax.local_devices() if d.memory_stats() is not None
     ]
-    md = "\n\n".join(parts)
+    md = markdown(result)
     print(md)
     write_results(args.out, result, md)
     if "env" in result:

@@ -213,4 +213,4 @@ def test_layer_norm_blocks_refuses_a_width_the_kernels_do_not_take(capsys) -> No
     with pytest.raises(SystemExit) as exit_info:
         lnb.main(["--widths", "100"])
     assert exit_info.value.code == 2
-    assert "--widths 100: the kernels take 128, 256" in capsys.readouterr().err
+    assert "--widths 100: the kernels take 64, 128, 256" in capsys.readouterr().err

@@ -106,11 +106,18 @@ def test_train_networks_default_to_the_configs_and_rejaxs() -> None:
 
 
 def _run(seed: int, ours: tuple, theirs: tuple) -> dict:
-    """A hand-made ``train_vs_rejax.measure`` result: (train s, final, late success) a side."""
+    """A hand-made ``train_vs_rejax.measure`` result: (train s, final, late success) a side,
+    and a curve of two intervals of half the time each."""
 
     def side(train_s: float, final: float, late: float | None) -> dict:
         none = {"time_to_threshold_s": None, "time_to_peer_best_s": None}
-        return {"train_s": train_s, "final_success": final, "late_success": late} | none
+        curve = [{"train_s": train_s / 2, "success": final}, {"train_s": train_s, "success": final}]
+        return {
+            "train_s": train_s,
+            "final_success": final,
+            "late_success": late,
+            "curve": curve,
+        } | none
 
     return {
         "hidden_sizes": [16], "seed": seed, "network_weights": 10, "threshold": 0.9,
@@ -126,15 +133,58 @@ def test_late_success_and_the_mean_over_seeds() -> None:
     assert train_vs_rejax.late_success(curve[:3]) == pytest.approx(0.3)  # at least one
     runs = [_run(0, (1.0, 0.9, 0.8), (2.0, 0.7, 0.6)), _run(1, (1.0, 0.7, 0.6), (4.0, 0.9, 0.8))]
     md = train_vs_rejax.summary(runs)
-    assert "| 16 | 0 | 10 | 1.0 | 2.0 | 2.00x | 0.900 / 0.700 | 0.800 / 0.600 |" in md
-    # the means: train s, the ratio of each seed's times, then final and late success
-    assert "| 16 | mean of 2 | | 1.0 | 3.0 | 3.00x | 0.800 / 0.800 | 0.700 / 0.700 |" in md
+    assert "| 16 | 0 | 10 | 1.0 | 2.0 | 2.00x | 2.00x | 0.900 / 0.700 | 0.800 / 0.600 |" in md
+    # the means: train s, the ratios of each seed's times (whole run, after the first
+    # interval), then final and late success
+    assert "| 16 | mean of 2 | | 1.0 | 3.0 | 3.00x | 3.00x | 0.800 / 0.800 | 0.700 / 0.700 |" in md
     one = train_vs_rejax.summary(runs[:1])
     assert "mean of" not in one  # one seed: no mean row
     # results recorded before late success existed say so instead of a number
     old = [_run(0, (1.0, 0.9, None), (2.0, 0.7, None)), _run(1, (1.0, 0.7, None), (2.0, 0.9, None))]
     assert "| 0.900 / 0.700 | n/a / n/a |" in train_vs_rejax.summary(old)
     assert "| 0.800 / 0.800 | n/a |" in train_vs_rejax.summary(old)
+
+
+def _full_run() -> dict:
+    """A hand-made result as ``compare`` records it: first intervals of 0.3 and 0.6 s, then
+    0.2 and 0.6 s an interval."""
+    run = _run(0, (0.7, 1.0, 1.0), (1.8, 1.0, 1.0))
+    for side, times in zip(run["sides"].values(), ([0.3, 0.5, 0.7], [0.6, 1.2, 1.8]), strict=True):
+        side["curve"] = [{"train_s": t, "success": 1.0} for t in times]
+        side |= {"compile_s": 1.0, "env_steps_per_s": 1.0, "steps_to_threshold": None}
+    run["sides"]["rejax PQN"]["time_to_peer_best_s"] = 0.6
+    return run | {"config": {"algo": "pqn", "env": "GridMaze-v0", "total_timesteps": 3}}
+
+
+def test_ratio_after_the_first_interval_leaves_out_the_first_calls(tmp_path: Path) -> None:
+    """The first call of a fresh program pays one-time costs: the ratio over the later
+    intervals is reported beside the whole run's, and --render writes it into the tables of
+    a run recorded before it existed."""
+    run = _full_run()
+    assert train_vs_rejax.after_first_ratio(run["sides"].values()) == pytest.approx(3.0)
+    assert run["wall_time_ratio"] == pytest.approx(1.8 / 0.7)
+    one = {k: {"curve": s["curve"][:1]} for k, s in run["sides"].items()}
+    assert train_vs_rejax.after_first_ratio(one.values()) is None  # one interval: n/a
+    out = tmp_path / "compare.json"
+    out.write_text(json.dumps({"machine": {}, "command": "c", "train": [run]}))
+    compare.main(["--render", "--out", str(out)])
+    md = out.with_suffix(".md").read_text()
+    assert "### PQN training, GridMaze-v0, 3 env steps, network 16, seed 0" in md
+    assert (
+        "Wall-time ratio rejax / ours: **2.57x**; over the intervals after each side's first: 3.00x"
+        in md
+    )
+    assert "| 2.57x | 3.00x |" in md
+
+
+def test_render_of_a_file_that_is_not_a_result_exits_2(tmp_path: Path, capsys) -> None:
+    bad = tmp_path / "other.json"
+    bad.write_text('{"train": [{"seed": 0}]}')
+    for path in (bad, tmp_path / "missing.json"):
+        with pytest.raises(SystemExit) as e:
+            compare.main(["--render", "--out", str(path)])
+        assert e.value.code == 2
+        assert f"--render --out {path}" in capsys.readouterr().err
 
 
 @pytest.mark.slow

@@ -105,7 +105,17 @@ def test_bfloat16_gradient_is_float32_accurate():
     assert layer_norm_relu(*args).dtype == jnp.bfloat16
 
 
-@pytest.mark.parametrize("rows, width", [(12, 128), (32, 96), (32, 64)])
+def test_narrowest_kernel_width_computes_flax_layer_norm_relu():
+    """Width 64 (the last hidden layer of the grid's network) with the table's blocks: 64
+    rows a block, two blocks."""
+    rows = 2 * layer_norm.FORWARD_BLOCKS[64].rows
+    args, cotangent = inputs(rows, 64)
+    fused = lambda *a: layer_norm_relu(*a, pallas=True)  # noqa: E731
+    assert kernel_fits(rows, 64) and uses_kernel(fused, args)
+    assert_computes_flax_layer_norm_relu(fused, args, cotangent)
+
+
+@pytest.mark.parametrize("rows, width", [(12, 128), (32, 96), (32, 32), (96, 64)])
 def test_shapes_the_kernels_do_not_take_run_the_jnp_form(rows, width):
     args, cotangent = inputs(rows, width)
     assert not kernel_fits(rows, width)

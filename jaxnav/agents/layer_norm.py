@@ -39,7 +39,7 @@ from jax.sharding import PartitionSpec as P
 
 EPSILON = 1e-6  # flax.linen.LayerNorm's default
 # widths the kernels take: a whole row is one block, Triton wants powers of two
-KERNEL_WIDTHS = tuple(2**k for k in range(7, 12))  # 128 .. 2048
+KERNEL_WIDTHS = tuple(2**k for k in range(6, 12))  # 64 .. 2048
 
 
 class Blocks(NamedTuple):
@@ -54,28 +54,36 @@ class Blocks(NamedTuple):
     stages: int
 
 
-# Chosen on one H100 at 16,384 rows from each kernel timed alone
-# (``python -m benchmarks.layer_norm_blocks``, ``benchmarks/results/layer_norm_blocks_h100.md``:
-# the fastest there at 1024 and for the 256 backward; the others within a tenth to a fifth of
-# the fastest, what the table varies from run to run at these sizes),
-# then the 1024-512-256 preset trained with them: at 512 and 1024 a few hundred instances
-# looping over small blocks, the next block's loads issued while the last one computes, trained
-# at 7.34M env steps/s where instances walking 2-4 blocks unrolled trained at 7.15M
-# (``benchmarks/results/train_throughput_h100_RobotNav-v0.md`` and the archived
-# ``*_unrolled_walk``). Backward instances add up their blocks' column sums of the parameter
-# gradients in registers and write them once: fewer instances, fewer partial sums to reduce.
-# 128 and 2048 keep the blocks measured before the loop (one an instance), unmeasured since.
+# Chosen from each kernel timed alone (``python -m benchmarks.layer_norm_blocks``), then
+# trained with:
+# - 1024 and 2048 on one H100 at 16,384 rows, the RobotNav-v0 preset's minibatch
+#   (``benchmarks/results/layer_norm_blocks_h100.md``): a few hundred instances looping over
+#   small blocks, the next block's loads issued while the last one computes; the preset
+#   trained at 7.34M env steps/s with them where instances walking 2-4 blocks unrolled
+#   trained at 7.15M (``benchmarks/results/train_throughput_h100_RobotNav-v0.md`` and the
+#   archived ``*_unrolled_walk``). 2048 keeps the blocks measured before the loop.
+# - 512, 256 and 128 on one H200 at 65,536 rows, GridMaze-v0's minibatch at 32,768 envs
+#   (``benchmarks/results/layer_norm_blocks_h200.md``): the fastest there; the grid's PQN
+#   iteration took 5.56 ms with them against 5.78-5.80 with the blocks chosen at 16,384 rows,
+#   and RobotNav-v0's 25.46 against 25.50 (median of 7 and 5 calls, the same machine).
+# - 64 on one H200 at 65,536 rows (``benchmarks/results/layer_norm_blocks_h200_64.md``): the
+#   grid network's last hidden layer, which took the jnp form before; its PQN iteration took
+#   5.85 ms against 6.12-6.15.
+# Backward instances add up their blocks' column sums of the parameter gradients in registers
+# and write them once: fewer instances, fewer partial sums to reduce.
 FORWARD_BLOCKS: dict[int, Blocks] = {
-    128: Blocks(8, 4, 2048, 1),
-    256: Blocks(16, 4, 256, 2),
-    512: Blocks(8, 4, 512, 2),
+    64: Blocks(64, 4, 2048, 2),
+    128: Blocks(32, 4, 4096, 2),
+    256: Blocks(16, 4, 1024, 2),
+    512: Blocks(4, 4, 1024, 2),
     1024: Blocks(8, 4, 512, 2),
     2048: Blocks(8, 4, 2048, 1),
 }
 BACKWARD_BLOCKS: dict[int, Blocks] = {
-    128: Blocks(32, 4, 512, 1),
-    256: Blocks(32, 4, 256, 2),
-    512: Blocks(4, 4, 512, 2),
+    64: Blocks(64, 4, 1024, 2),
+    128: Blocks(32, 4, 4096, 2),
+    256: Blocks(16, 4, 1024, 2),
+    512: Blocks(16, 4, 512, 2),
     1024: Blocks(2, 4, 512, 2),
     2048: Blocks(4, 4, 4096, 1),
 }
