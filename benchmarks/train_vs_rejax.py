@@ -45,7 +45,7 @@ import dataclasses
 import math
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from typing import Any
 
 import flax.linen as nn
@@ -245,7 +245,7 @@ def measure(
     }
 
 
-def after_first_ratio(sides: Any) -> float | None:
+def after_first_ratio(sides: Iterable[dict[str, Any]]) -> float | None:
     """rejax / ours in train time over the intervals after each side's first, from the two
     sides' curves (ours first); None for runs of one interval."""
     seconds = []
@@ -259,6 +259,7 @@ def after_first_ratio(sides: Any) -> float | None:
 
 
 def ratio_text(value: float | None) -> str:
+    """A ratio rejax / ours, "n/a" where there is none."""
     return "n/a" if value is None else f"{value:.2f}x"
 
 
