@@ -113,6 +113,7 @@ def test_unwritable_or_used_out_dir_is_refused(tiny_run, tmp_path, capsys):
     assert str(tiny_run) in err and str(blocker) in err
 
 
+@pytest.mark.slow  # two processes of the CLI
 def test_cli_process_exit_code_and_help():
     bad = subprocess.run(
         [sys.executable, "-m", "jaxnav.train", "--num-envs", "-3"], capture_output=True, text=True

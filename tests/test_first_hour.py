@@ -80,6 +80,7 @@ def test_evaluations_of_other_policies_and_envs_keep_their_own_files(grid_run, c
     assert other["env_kwargs"]["layout_seed"] == 3
 
 
+@pytest.mark.slow  # renders an episode end to end
 def test_render_writes_into_the_run_by_default(grid_run, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     assert render.main([str(grid_run), "--episodes", "1"]) == 0

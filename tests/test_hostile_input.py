@@ -10,6 +10,7 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+import pytest
 from conftest import TINY_FLAGS  # pytest puts tests/ on sys.path
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
@@ -134,6 +135,7 @@ def cheap(config) -> bool:
     )
 
 
+@pytest.mark.slow  # 150 command lines through the CLI
 @settings(
     max_examples=150,
     deadline=None,
