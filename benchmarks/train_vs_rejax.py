@@ -239,7 +239,6 @@ def measure(
         "seed": seed,
         "sides": out,
         "wall_time_ratio": theirs["train_s"] / ours["train_s"],
-        "after_first_ratio": after_first_ratio(out.values()),
         "peer_best_success": peer_best,
         "equal_success_ratio": None if t_ours is None else t_theirs / t_ours,
     }
