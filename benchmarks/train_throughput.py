@@ -181,19 +181,22 @@ def fixed_minibatch(trainer: Trainer, ts: TrainState, key: jax.Array) -> Any:
 
 def update_program(trainer: Trainer, num_updates: int) -> Callable[[TrainState, Any], Any]:
     """``(state, batch) -> (state, mean loss)``: ``num_updates`` of ``Trainer.gradient_step``
-    on ``batch``, rolled by one row each step."""
+    on ``batch``, rolled by one row each step, its diagnostics summed as training sums them
+    (``dqn.diagnostics_add``)."""
 
     def run(ts: TrainState, batch: Any) -> tuple[TrainState, jax.Array]:
         loss_fn = trainer.minibatch_loss(ts)
+        rows = jax.tree.leaves(batch)[0].shape[0]
 
-        def step(carry: tuple[TrainState, Any], _: None) -> tuple[tuple, jax.Array]:
-            ts, batch = carry
-            ts, aux = trainer.gradient_step(ts, batch, loss_fn)
+        def step(carry: tuple[TrainState, Any, dict], _: None) -> tuple[tuple, None]:
+            ts, batch, total = carry
+            ts, diagnostics = trainer.gradient_step(ts, batch, loss_fn)
             batch = jax.tree.map(lambda x: jnp.roll(x, 1, axis=0), batch)
-            return (ts, batch), aux["loss"]
+            return (ts, batch, dqn.diagnostics_add(total, diagnostics)), None
 
-        (ts, _), losses = jax.lax.scan(step, (ts, batch), None, length=num_updates)
-        return ts, losses.mean()
+        carry = (ts, batch, dqn.diagnostics_init(rows))
+        (ts, _, total), _ = jax.lax.scan(step, carry, None, length=num_updates)
+        return ts, dqn.diagnostics_means(total, num_updates)["loss"]
 
     return run
 

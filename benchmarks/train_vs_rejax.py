@@ -20,23 +20,25 @@ float32 matrix products (ours: ``compute_dtype``, so give the config float32 for
 comparison), its squared loss, elementwise gradient clipping, a time limit treated as terminal,
 and bootstrapping from the observation after an auto-reset.
 
-Each side is compiled once (reported apart: ``jit(...).lower(...).compile()``) as one
-logging interval of ``log_interval`` env steps (ours: ``Trainer.run(ts, i, 1)``, what the CLI
-runs; rejax: ``algo.train(train_state=ts)`` with ``total_timesteps = log_interval`` and its
-evaluation callback replaced by nothing), then the intervals run in turn (ours, rejax, ours,
-...), so load changes on a shared machine hit both alike. After every interval, outside the
-timed region, both are evaluated greedily with the same evaluator (``jaxnav.evaluate``) on the
-same ``eval_episodes`` fresh episodes. Reported per side: compile s, train s (the timed
-intervals), env steps/s, the greedy success curve, and the train time until greedy success
-first reached ``threshold``; the wall-time ratio rejax / ours (speed per env step); and, at
-equal success, the train time each side took to first reach the best success rejax reached in
-the run, and their ratio rejax / ours (speed to a success both reach). Beside the wall-time
-ratio, the same ratio over the intervals after each side's first (``after_first_ratio``): the
-first call of a freshly compiled program also pays one-time costs (its kernels loaded, its CUDA
-graphs instantiated) that a long run pays once. Beside the final
-success, each side's mean success over the last quarter of its evaluations (``late_success``):
-one evaluation of a trainer whose success swings from check to check says little about what
-a run of it delivers, and a mean over several says more.
+Each side is compiled once (reported apart: ``jit(...).lower(...).compile()``) as one logging
+interval of ``log_interval`` env steps (ours: ``Trainer.run(ts, i, 1)``, what the CLI runs;
+rejax: ``algo.train(train_state=ts)`` with ``total_timesteps = log_interval`` and its
+evaluation callback replaced by nothing) and called once on a state of its own, thrown away
+(reported apart too: ``first_call_s``, where the program is loaded onto the device, a cost a
+process pays once), then the intervals run in turn from a fresh state (ours, rejax, ours, ...),
+so load changes on a shared machine hit both alike. After every interval, outside the timed
+region, both are evaluated greedily with the same evaluator (``jaxnav.evaluate``) on the same
+``eval_episodes`` fresh episodes. Reported per side: compile s, first call s, train s (the
+timed intervals), env steps/s, the greedy success curve, and the train time until greedy
+success first reached ``threshold``; the wall-time ratio rejax / ours (speed per env step);
+and, at equal success, the train time each side took to first reach the best success rejax
+reached in the run, and their ratio rejax / ours (speed to a success both reach). Beside the
+wall-time ratio, the same ratio over the intervals after each side's first
+(``after_first_ratio``): in results recorded before the first call was made apart, the first
+timed interval paid the program's loading; now the two ratios differ only by noise. Beside the
+final success, each side's mean success over the last quarter of its evaluations
+(``late_success``): one evaluation of a trainer whose success swings from check to check says
+little about what a run of it delivers, and a mean over several says more.
 """
 
 from __future__ import annotations
@@ -62,6 +64,15 @@ Side = dict[str, Any]  # one trainer: its compiled interval, state, network and 
 LATE_FRACTION = 0.25  # late_success: the mean over this last fraction of the evaluations
 
 
+def first_call_s(call: Callable[[], Any]) -> float:
+    """Seconds of ``call()``: a compiled interval's first call, on a state of its own that is
+    then thrown away. It loads the program's kernels onto the device and instantiates its CUDA
+    graphs, once a process, outside the timed training (the trained state starts fresh)."""
+    t0 = time.perf_counter()
+    jax.block_until_ready(call())
+    return time.perf_counter() - t0
+
+
 def _our_side(trainer: Trainer, key: jax.Array) -> Side:
     c = trainer.config
     t0 = time.perf_counter()
@@ -69,9 +80,11 @@ def _our_side(trainer: Trainer, key: jax.Array) -> Side:
     state = init(key)
     interval = jit_training(lambda ts, log: trainer.run(ts, log, 1), donate_argnums=0)
     interval = interval.lower(state, jnp.int32(0)).compile()
+    compile_s = time.perf_counter() - t0
     return {
         "name": f"jaxnav {c.algo.upper()}",
-        "compile_s": time.perf_counter() - t0,
+        "compile_s": compile_s,
+        "first_call_s": first_call_s(lambda: interval(init(key), jnp.int32(0))),
         "state": state,
         "step": lambda ts, i: interval(ts, jnp.int32(i))[0],
         "q_params": lambda ts: ts.params,
@@ -146,9 +159,11 @@ def _rejax_side(trainer: Trainer, key: jax.Array) -> Side:
     init = jax.jit(algo.init_state).lower(key).compile()
     state = init(key)
     train = jax.jit(lambda ts: algo.train(train_state=ts)[0]).lower(state).compile()
+    compile_s = time.perf_counter() - t0
     return {
         "name": f"rejax {c.algo.upper()}",
-        "compile_s": time.perf_counter() - t0,
+        "compile_s": compile_s,
+        "first_call_s": first_call_s(lambda: train(init(key))),
         "state": state,
         "step": lambda ts, i: train(ts),
         "q_params": lambda ts: ts.q_ts.params,
@@ -212,6 +227,7 @@ def measure(
         reached = first_reaching(side["curve"], threshold)
         out[side["name"]] = {
             "compile_s": side["compile_s"],
+            "first_call_s": side["first_call_s"],
             "train_s": side["train_s"],
             "env_steps": config.num_logs * chunk,
             "env_steps_per_s": config.num_logs * chunk / side["train_s"],
@@ -276,15 +292,16 @@ def first_reaching(curve: list[dict[str, Any]], success: float) -> dict[str, Any
 def table(result: dict[str, Any]) -> str:
     thr = result["threshold"]
     lines = [
-        f"| trainer | compile s | train s | env steps/s | final greedy success "
+        f"| trainer | compile s | first call s | train s | env steps/s | final greedy success "
         f"| mean success, last quarter | train s to success >= {thr:g} |",
-        "|---|---:|---:|---:|---:|---:|---:|",
+        "|---|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for name, s in result["sides"].items():
         t = s["time_to_threshold_s"]
         reached = "not reached" if t is None else f"{t:.1f} ({s['steps_to_threshold']:,} steps)"
         lines.append(
-            f"| {name} | {s['compile_s']:.1f} | {s['train_s']:.1f} | "
+            f"| {name} | {s['compile_s']:.1f} | {seconds_text(s.get('first_call_s'))} "
+            f"| {s['train_s']:.1f} | "
             f"{s['env_steps_per_s']:,.0f} | {s['final_success']:.3f} | "
             f"{success_text(s.get('late_success'))} | {reached} |"
         )
@@ -306,6 +323,11 @@ def equal_success(result: dict[str, Any]) -> str:
     if ratio is None:
         return head + f"jaxnav never reached it / rejax {t_theirs:.1f}"
     return head + f"jaxnav {t_ours:.1f} / rejax {t_theirs:.1f}, rejax / ours **{ratio:.2f}x**"
+
+
+def seconds_text(value: float | None) -> str:
+    """Seconds, "n/a" where they were not recorded (``first_call_s`` in older results)."""
+    return "n/a" if value is None else f"{value:.2f}"
 
 
 def success_text(value: float | None) -> str:

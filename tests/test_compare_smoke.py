@@ -175,6 +175,7 @@ def test_ratio_after_the_first_interval_leaves_out_the_first_calls(tmp_path: Pat
         in md
     )
     assert "| 2.57x | 3.00x |" in md
+    assert "| jaxnav PQN | 1.0 | n/a | 0.7 |" in md  # recorded before the first call was apart
 
 
 def test_render_of_a_file_that_is_not_a_result_exits_2(tmp_path: Path, capsys) -> None:
@@ -197,6 +198,8 @@ def test_train_vs_rejax_same_budget_and_curves() -> None:
     assert set(sides) == {"jaxnav DQN", "rejax DQN"}
     for s in sides.values():
         assert s["compile_s"] > 0 and s["train_s"] > 0 and s["env_steps"] == 1000
+        assert s["first_call_s"] > 0  # made apart, untimed
+        assert f"| {s['compile_s']:.1f} | {s['first_call_s']:.2f} |" in train_vs_rejax.table(result)
         assert [p["env_steps"] for p in s["curve"]] == [500, 1000]
         times = [p["train_s"] for p in s["curve"]]
         assert times == sorted(times) and times[-1] == pytest.approx(s["train_s"])

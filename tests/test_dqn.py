@@ -189,8 +189,29 @@ def test_regression_loss_and_its_gradient_match_numpy(loss_type):
     want_grad[np.arange(256), action] = slope / 256
     np.testing.assert_allclose(value, want.mean(), rtol=1e-5)
     np.testing.assert_allclose(grad, want_grad, rtol=1e-5, atol=1e-8)
-    np.testing.assert_allclose(aux["q_mean"], q[np.arange(256), action].mean(), rtol=1e-5)
-    assert float(aux["q_max"]) == np.abs(q).max()
+    np.testing.assert_allclose(aux["loss"], want, rtol=1e-5)
+    np.testing.assert_allclose(aux["q_mean"], q[np.arange(256), action], rtol=1e-6)
+    np.testing.assert_array_equal(aux["q_max"], np.abs(q).max(axis=-1))
+
+
+def test_diagnostics_summed_over_steps_are_the_means_of_each_steps_means():
+    """Per-row sums over a loop's steps reduce to the mean of each step's mean loss and
+    Q-value, and the largest |Q| of any step; a NaN in any step shows in the result."""
+    rng = np.random.default_rng(1)
+    steps = [{name: rng.normal(size=8).astype(np.float32) for name in dqn.DIAGNOSTICS}]
+    steps += [{name: rng.normal(size=8).astype(np.float32) for name in dqn.DIAGNOSTICS}]
+    for step in steps:
+        step["q_max"] = np.abs(step["q_max"])
+    total = dqn.diagnostics_init(8)
+    for step in steps:
+        total = dqn.diagnostics_add(total, step)
+    means = dqn.diagnostics_means(total, len(steps))
+    for name in ("loss", "q_mean"):
+        np.testing.assert_allclose(means[name], np.mean([s[name].mean() for s in steps]), 1e-6)
+    assert float(means["q_max"]) == max(s["q_max"].max() for s in steps)
+    steps[1]["q_max"][3] = np.nan
+    total = dqn.diagnostics_add(dqn.diagnostics_add(dqn.diagnostics_init(8), steps[0]), steps[1])
+    assert np.isnan(dqn.diagnostics_means(total, 2)["q_max"])
 
 
 def test_taken_values_masked_and_gathered_agree_with_their_gradients():

@@ -286,21 +286,52 @@ def taken_values(q: jax.Array, action: jax.Array, masked: bool) -> jax.Array:
 def regression_loss(
     params, apply_fn, obs: jax.Array, action: jax.Array, target: jax.Array, loss_type: str
 ) -> tuple[jax.Array, dict[str, jax.Array]]:
-    """Mean TD loss of ``Q(obs, action)`` against fixed ``target`` values, and diagnostics;
-    ``loss_type`` "huber" (delta 1) or "mse" (the squared error)."""
+    """Mean TD loss of ``Q(obs, action)`` against fixed ``target`` values, and its diagnostics
+    per row (``DIAGNOSTICS``: summed over a loop's gradient steps with ``diagnostics_add``,
+    reduced once after it with ``diagnostics_means``); ``loss_type`` "huber" (delta 1) or
+    "mse" (the squared error)."""
     q = apply_fn(params, obs)
-    gpu = jax.default_backend() == "gpu"
-    q_taken = taken_values(q, action, masked=gpu)
+    q_taken = taken_values(q, action, masked=jax.default_backend() == "gpu")
     td = q_taken - jax.lax.stop_gradient(target)
     if loss_type == "huber":
         per_sample = jnp.where(jnp.abs(td) <= 1.0, 0.5 * td**2, jnp.abs(td) - 0.5)
     else:
         per_sample = td**2
-    if gpu:
-        # materialized before the means: XLA reduces a batch to a scalar in one GPU block, and
-        # fused into it, the per-sample terms (and the targets' gather) ran in that block alone
-        per_sample, q_taken = jax.lax.optimization_barrier((per_sample, q_taken))
-    return per_sample.mean(), {"q_mean": q_taken.mean(), "q_max": jnp.abs(q).max()}
+    rows = {"loss": per_sample, "q_mean": q_taken, "q_max": jnp.abs(q).max(axis=-1)}
+    return per_sample.mean(), rows
+
+
+# What ``regression_loss`` reports of a gradient step, per row: the TD loss, the taken
+# action's Q-value and the largest |Q|. A loop of gradient steps keeps their running sums (max
+# for q_max), each row apart: on a GPU a reduction to a scalar is a kernel, and three a step
+# were 5 of the DQN's 70 kernels a gradient step; sums per row fuse into the kernels that
+# compute the rows (GridMaze-v0's PQN at 32,768 envs: 5.72 -> 5.52 ms an iteration on one H200,
+# benchmarks/RESULTS.md).
+DIAGNOSTICS = ("loss", "q_mean", "q_max")
+
+
+def diagnostics_init(rows: int) -> dict[str, jax.Array]:
+    """Running sums for ``diagnostics_add`` over steps of ``rows`` rows."""
+    return {name: jnp.zeros(rows) for name in DIAGNOSTICS}
+
+
+def diagnostics_add(total: dict[str, jax.Array], rows: dict[str, jax.Array]) -> dict:
+    """``total`` with one gradient step's per-row diagnostics added (q_max: the larger)."""
+    return {
+        "loss": total["loss"] + rows["loss"],
+        "q_mean": total["q_mean"] + rows["q_mean"],
+        "q_max": jnp.maximum(total["q_max"], rows["q_max"]),  # NaN stays NaN
+    }
+
+
+def diagnostics_means(total: dict[str, jax.Array], steps: int) -> dict[str, jax.Array]:
+    """The mean loss and Q-value over ``steps`` gradient steps summed in ``total``, and the
+    largest |Q| any of them saw."""
+    return {
+        "loss": total["loss"].mean() / steps,
+        "q_mean": total["q_mean"].mean() / steps,
+        "q_max": total["q_max"].max(),
+    }
 
 
 def dqn_target(params, target_params, apply_fn, batch: Batch, double: bool) -> jax.Array:

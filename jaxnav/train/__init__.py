@@ -182,13 +182,17 @@ class Trainer:
         return jax.default_backend() != "cpu"
 
     @staticmethod
-    def minibatch_unroll(num_minibatches: int) -> int:
-        """How many of an epoch's PQN gradient steps one loop iteration runs: on a GPU up to 8,
-        so that XLA schedules across steps (RobotNav-v0's preset and GridMaze-v0 at 32,768 envs
-        train a few percent faster, README "Training-loop throughput", for a few seconds more
-        compile); on a CPU 1, where the loop costs nothing to speak of and compiles stay short.
-        The DQN's updates stay rolled: unrolled they ran slower."""
-        return min(num_minibatches, 8) if jax.default_backend() == "gpu" else 1
+    def updates_unroll(algo: str, steps: int) -> int:
+        """How many of a loop's ``steps`` gradient steps one trip runs, so that XLA schedules
+        across steps: on a GPU up to 8 of an epoch's PQN minibatches (RobotNav-v0's preset and
+        GridMaze-v0 at 32,768 envs train a few percent faster, README "Training-loop
+        throughput", for a few seconds more compile) and 2 of the DQN's updates (3.32 -> 3.24
+        ms an iteration of GridMaze-v0 at 4,096 envs on one H200, benchmarks/RESULTS.md; before
+        its batches were sampled ahead of the loop, unrolled updates ran slower); on a CPU 1,
+        where the loop costs nothing to speak of and compiles stay short."""
+        if jax.default_backend() != "gpu":
+            return 1
+        return min(steps, 8 if algo == "pqn" else 2)
 
     @staticmethod
     def returns_unrolled() -> bool:
@@ -319,21 +323,20 @@ class Trainer:
         return hp.eps_end + (hp.eps_start - hp.eps_end) * frac
 
     def minibatch_loss(self, ts: TrainState) -> Callable[[Any, Any], tuple[jax.Array, dict]]:
-        """The algorithm's loss of one minibatch, ``loss(params, batch) -> (loss, aux)``, as
-        the training's gradient steps take it: for DQN the TD loss against ``ts``'s target
-        network on a ``dqn.buffer_sample`` batch, for PQN the regression on ``(obs [B, D],
-        action [B], target [B])`` (the target a lambda-return)."""
-        c = self.config
+        """The algorithm's loss of one minibatch, ``loss(params, batch) -> (loss, rows)``
+        (``rows``: ``dqn.regression_loss``'s diagnostics per row), as the training's gradient
+        steps take it: for DQN the TD loss against ``ts``'s target network on a
+        ``dqn.buffer_sample`` batch, for PQN the regression on ``(obs [B, D], action [B],
+        target [B])`` (the target a lambda-return)."""
+        c, apply = self.config, self.learner_network.apply
         if c.algo == "dqn":
             return lambda params, batch: dqn.td_loss(
-                params, ts.target_params, self.learner_network.apply, batch, c.double, c.loss
+                params, ts.target_params, apply, batch, c.double, c.loss
             )
 
         def loss_fn(params, batch):
             obs, action, target = batch
-            return dqn.regression_loss(
-                params, self.learner_network.apply, obs, action, target, c.loss
-            )
+            return dqn.regression_loss(params, apply, obs, action, target, c.loss)
 
         return loss_fn
 
@@ -341,21 +344,15 @@ class Trainer:
         self, ts: TrainState, batch: Any, loss_fn: Callable
     ) -> tuple[TrainState, dict]:
         """One optimizer step (gradient clipping, then Adam or SGD at the scheduled learning
-        rate) on ``loss_fn(params, batch) -> (loss, aux)``, e.g. ``minibatch_loss(ts)``;
-        returns the new state and ``{"loss": loss, **aux}``. Every update of both
-        algorithms is this step."""
+        rate) on ``loss_fn(params, batch) -> (loss, rows)``, e.g. ``minibatch_loss(ts)``;
+        returns the new state and ``rows``. Every update of both algorithms is this step."""
         # data parallel over a seed's devices: each computes the loss and gradient of its part
         # of the batch, and XLA sums the parts (the gradient averaging of ``sharded``)
         batch = jax.lax.with_sharding_constraint(batch, NamedSharding(self.mesh, P(ENVS)))
-        (loss, aux), grads = jax.value_and_grad(loss_fn, has_aux=True)(ts.params, batch)
+        grads, rows = jax.grad(loss_fn, has_aux=True)(ts.params, batch)
         updates, opt_state = self._optimizer(ts.hparams).update(grads, ts.opt_state, ts.params)
         params = optax.apply_updates(ts.params, updates)
-        return ts.replace(params=params, opt_state=opt_state), {"loss": loss, **aux}
-
-    def _dqn_update(self, ts: TrainState, key: jax.Array) -> tuple[TrainState, dict]:
-        c = self.config
-        batch = dqn.buffer_sample(ts.buffer, key, c.batch_size, c.n_step, ts.hparams.gamma)
-        return self.gradient_step(ts, batch, self.minibatch_loss(ts))
+        return ts.replace(params=params, opt_state=opt_state), rows
 
     def _env_step(
         self,
@@ -428,9 +425,10 @@ class Trainer:
         def updated_target(ts: TrainState) -> Any:
             return dqn.polyak(ts.target_params, ts.params, hp.tau)
 
-        def update(ts, xs):
-            k, start, end = xs
-            ts, aux = self._dqn_update(ts, k)
+        def update(carry, xs):
+            ts, total = carry
+            batch, start, end = xs
+            ts, rows = self.gradient_step(ts, batch, self.minibatch_loss(ts))
             crossed = (env_steps + end) // period > (env_steps + start) // period
             if self.target_update_select():
                 target = jax.tree.map(
@@ -444,11 +442,20 @@ class Trainer:
                     lambda ts: ts,
                     ts,
                 )
-            return ts, aux
+            return (ts, dqn.diagnostics_add(total, rows)), None
 
         def updates(ts):
-            ts, aux = jax.lax.scan(update, ts, (jax.random.split(key, u), starts, ends))
-            return ts, jax.tree.map(jnp.mean, aux) | {"updated": jnp.ones((), jnp.int32)}
+            # the iteration's batches sampled at once: replay does not change during its
+            # gradient steps, and sampling inside each one put it first in every step's chain
+            # of kernels (the same samples: one key a step either way)
+            batches = jax.vmap(
+                lambda k: dqn.buffer_sample(ts.buffer, k, c.batch_size, c.n_step, hp.gamma)
+            )(jax.random.split(key, u))
+            total = dqn.diagnostics_init(c.batch_size)
+            xs, unroll = (batches, starts, ends), self.updates_unroll(c.algo, u)
+            (ts, total), _ = jax.lax.scan(update, (ts, total), xs, unroll=unroll)
+            aux = dqn.diagnostics_means(total, u)
+            return ts, aux | {"updated": jnp.ones((), jnp.int32)}
 
         def no_updates(ts):
             zero = jnp.zeros(())
@@ -512,20 +519,21 @@ class Trainer:
         )
         loss_fn = self.minibatch_loss(ts)
 
-        def epoch(ts, k):
+        def minibatch(carry, rows):
+            ts, total = carry
+            ts, diagnostics = self.gradient_step(ts, jax.tree.map(lambda x: x[rows], data), loss_fn)
+            return (ts, dqn.diagnostics_add(total, diagnostics)), None
+
+        def epoch(carry, k):
             # each step gathers its own rows: no shuffled copy of the whole rollout an epoch
             order = pqn.shuffled_rows(k, n).reshape(c.num_minibatches, -1)
-            return jax.lax.scan(
-                lambda ts, rows: self.gradient_step(
-                    ts, jax.tree.map(lambda x: x[rows], data), loss_fn
-                ),
-                ts,
-                order,
-                unroll=self.minibatch_unroll(c.num_minibatches),
-            )
+            unroll = self.updates_unroll(c.algo, c.num_minibatches)
+            return jax.lax.scan(minibatch, carry, order, unroll=unroll)[0], None
 
-        ts, aux = jax.lax.scan(epoch, ts, jax.random.split(key, c.num_epochs))
-        return ts, jax.tree.map(jnp.mean, aux) | {"updated": jnp.ones((), jnp.int32)}
+        carry = (ts, dqn.diagnostics_init(c.minibatch_size))
+        (ts, total), _ = jax.lax.scan(epoch, carry, jax.random.split(key, c.num_epochs))
+        aux = dqn.diagnostics_means(total, c.num_epochs * c.num_minibatches)
+        return ts, aux | {"updated": jnp.ones((), jnp.int32)}
 
     def _iteration(self, ts: TrainState, it: jax.Array) -> tuple[TrainState, dict]:
         """Every env steps ``rollout_length`` times, then the algorithm learns.
