@@ -536,3 +536,30 @@ def test_vmap_over_seeds_and_hparams(tiny_trainer, train_one, train_many, seed0_
     assert_trees_allclose(first, seed0_run[0].params, rtol=1e-4, atol=1e-5)
     assert not leaves_equal(first, second)
     assert float(metrics_lr["lr"][0, 0]) != float(metrics_lr["lr"][1, 0])
+
+
+@pytest.mark.parametrize("updates", [3, 4])
+def test_updates_unrolled_two_a_trip_train_exactly_as_rolled(monkeypatch, updates):
+    """On a GPU the DQN's gradient steps run two a loop trip (``Trainer.updates_unroll``),
+    also where their count is odd; on a CPU one. The same run either way: the same samples,
+    target updates and episodes, and parameters equal up to float rounding (XLA may fuse the
+    unrolled body's arithmetic otherwise)."""
+    config = dataclasses.replace(
+        TINY_TRAIN, batch_size=8, replay_ratio=2.0 * updates, total_timesteps=64, n_step=2
+    )
+    assert config.updates_per_iteration == updates
+    runs = []
+    for unroll in (1, 2):
+        monkeypatch.setattr(
+            Trainer, "updates_unroll", staticmethod(lambda algo, steps, k=unroll: min(steps, k))
+        )
+        runs.append(jax.jit(Trainer(config).train)(jax.random.key(5)))
+    rolled, unrolled = (jax.tree.leaves(run) for run in runs)
+    for a, b in zip(rolled, unrolled, strict=True):
+        if jnp.issubdtype(a.dtype, jax.dtypes.prng_key):
+            a, b = jax.random.key_data(a), jax.random.key_data(b)
+        if jnp.issubdtype(a.dtype, jnp.floating):
+            np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-7)
+        else:
+            np.testing.assert_array_equal(a, b)  # counts, actions, episodes, keys
+    assert float(runs[1][1]["loss"][-1]) > 0.0
