@@ -198,20 +198,24 @@ def test_diagnostics_summed_over_steps_are_the_means_of_each_steps_means():
     """Per-row sums over a loop's steps reduce to the mean of each step's mean loss and
     Q-value, and the largest |Q| of any step; a NaN in any step shows in the result."""
     rng = np.random.default_rng(1)
-    steps = [{name: rng.normal(size=8).astype(np.float32) for name in dqn.DIAGNOSTICS}]
-    steps += [{name: rng.normal(size=8).astype(np.float32) for name in dqn.DIAGNOSTICS}]
+    steps = [
+        {name: rng.normal(size=8).astype(np.float32) for name in dqn.DIAGNOSTICS} for _ in range(2)
+    ]
     for step in steps:
         step["q_max"] = np.abs(step["q_max"])
-    total = dqn.diagnostics_init(8)
-    for step in steps:
-        total = dqn.diagnostics_add(total, step)
-    means = dqn.diagnostics_means(total, len(steps))
+
+    def means_of(steps):
+        total = dqn.diagnostics_init(8)
+        for step in steps:
+            total = dqn.diagnostics_add(total, step)
+        return dqn.diagnostics_means(total, len(steps))
+
+    means = means_of(steps)
     for name in ("loss", "q_mean"):
         np.testing.assert_allclose(means[name], np.mean([s[name].mean() for s in steps]), 1e-6)
     assert float(means["q_max"]) == max(s["q_max"].max() for s in steps)
     steps[1]["q_max"][3] = np.nan
-    total = dqn.diagnostics_add(dqn.diagnostics_add(dqn.diagnostics_init(8), steps[0]), steps[1])
-    assert np.isnan(dqn.diagnostics_means(total, 2)["q_max"])
+    assert np.isnan(means_of(steps)["q_max"])
 
 
 def test_taken_values_masked_and_gathered_agree_with_their_gradients():

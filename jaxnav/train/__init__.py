@@ -458,13 +458,8 @@ class Trainer:
             return ts, aux | {"updated": jnp.ones((), jnp.int32)}
 
         def no_updates(ts):
-            zero = jnp.zeros(())
-            return ts, {
-                "loss": zero,
-                "q_mean": zero,
-                "q_max": zero,
-                "updated": jnp.zeros((), jnp.int32),
-            }
+            zeros = {name: jnp.zeros(()) for name in dqn.DIAGNOSTICS}
+            return ts, zeros | {"updated": jnp.zeros((), jnp.int32)}
 
         ts, aux = jax.lax.cond(learning, updates, no_updates, ts)
         return ts, aux
