@@ -184,15 +184,17 @@ class Trainer:
     @staticmethod
     def updates_unroll(algo: str, steps: int) -> int:
         """How many of a loop's ``steps`` gradient steps one trip runs, so that XLA schedules
-        across steps: on a GPU up to 8 of an epoch's PQN minibatches (RobotNav-v0's preset and
-        GridMaze-v0 at 32,768 envs train a few percent faster, README "Training-loop
-        throughput", for a few seconds more compile) and 2 of the DQN's updates (3.32 -> 3.24
-        ms an iteration of GridMaze-v0 at 4,096 envs on one H200, benchmarks/RESULTS.md; before
-        its batches were sampled ahead of the loop, unrolled updates ran slower); on a CPU 1,
-        where the loop costs nothing to speak of and compiles stay short."""
+        across steps: on a GPU up to 16 of an epoch's PQN minibatches (RobotNav-v0's preset and
+        GridMaze-v0 at 32,768 envs train a few percent faster with 8 than rolled, README
+        "Training-loop throughput", for a few seconds more compile; all 16 of RobotNav-v0's
+        took 25.48 ms an iteration against 25.61-25.86 with 8 on one H200, at no more compile,
+        benchmarks/RESULTS.md) and 2 of the DQN's updates (3.32 -> 3.24 ms an iteration of
+        GridMaze-v0 at 4,096 envs on one H200; before its batches were sampled ahead of the
+        loop, unrolled updates ran slower); on a CPU 1, where the loop costs nothing to speak
+        of and compiles stay short."""
         if jax.default_backend() != "gpu":
             return 1
-        return min(steps, 8 if algo == "pqn" else 2)
+        return min(steps, 16 if algo == "pqn" else 2)
 
     @staticmethod
     def returns_unrolled() -> bool:
