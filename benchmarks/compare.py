@@ -3,7 +3,7 @@
     python -m benchmarks.compare [--num-envs 1,16,256,4096,16384] [--envs NAME,...]
         [--steps 200] [--target-s 0.5] [--rounds 3] [--train-config JSON]
         [--train-networks 512,256,128,64;64,64] [--train-seeds 0] [--eval-episodes 256]
-        [--threshold 0.95]
+        [--threshold 0.95] [--train-peer-options]
         [--sections env,train,compile] [--out benchmarks/results/compare.json]
     python -m benchmarks.compare --render --out RESULT.json
 
@@ -24,6 +24,7 @@ Sections (each can be left out with ``--sections``):
   runs once per network of ``--train-networks``: by default the config's (the paper's
   512-256-128-64) and rejax's default MLP (64, 64). With the large one both spend most of their
   time in the same gradient arithmetic; with the small one, in what surrounds it.
+  ``--train-peer-options`` compiles rejax's programs with our XLA options too.
 - ``compile``: every CLI entry point started twice, with an empty and then a filled persistent
   compilation cache (``benchmarks.compile_time``).
 
@@ -219,6 +220,11 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--train-seeds", default="0", help="comma-separated seeds, a run each")
     p.add_argument("--eval-episodes", type=int, default=256, help="greedy episodes per check")
     p.add_argument("--threshold", type=float, default=0.95, help="greedy success to reach")
+    p.add_argument(
+        "--train-peer-options",
+        action="store_true",
+        help="compile rejax's programs with jaxnav.train.COMPILER_OPTIONS too (ours always)",
+    )
     p.add_argument("--compile-timesteps", type=int, default=16_000, help="steps per CLI run")
     p.add_argument("--sections", default=",".join(SECTIONS), help=f"comma-separated {SECTIONS}")
     p.add_argument("--out", type=Path, default=DEFAULT_OUT, help="JSON output path")
@@ -313,7 +319,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         for hidden_sizes in args.train_networks:
             config = dataclasses.replace(args.train_config, hidden_sizes=hidden_sizes)
             for seed in args.train_seeds:
-                run = train_vs_rejax.measure(config, args.eval_episodes, args.threshold, seed)
+                run = train_vs_rejax.measure(
+                    config, args.eval_episodes, args.threshold, seed, args.train_peer_options
+                )
                 result["train"].append(run | {"config": dataclasses.asdict(config)})
     if "compile" in args.sections:
         entries = list(compile_time.ENTRIES)

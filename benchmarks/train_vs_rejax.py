@@ -39,6 +39,11 @@ timed interval paid the program's loading; now the two ratios differ only by noi
 final success, each side's mean success over the last quarter of its evaluations
 (``late_success``): one evaluation of a trainer whose success swings from check to check says
 little about what a run of it delivers, and a mean over several says more.
+
+Rejax's programs are compiled as it ships them (``jax.jit``), ours with
+``jaxnav.train.COMPILER_OPTIONS`` (XLA's concurrent command-buffer scheduling, loops and
+conditionals as CUDA graph nodes: options any JAX program may pass); with ``peer_options``
+rejax's are compiled with them too, which shows how much of the ratio those options make.
 """
 
 from __future__ import annotations
@@ -93,7 +98,7 @@ def _our_side(trainer: Trainer, key: jax.Array) -> Side:
     }
 
 
-def _rejax_side(trainer: Trainer, key: jax.Array) -> Side:
+def _rejax_side(trainer: Trainer, key: jax.Array, peer_options: bool) -> Side:
     import rejax  # bench extra
     from rejax.networks import DiscreteQNetwork, DuelingQNetwork, EpsilonGreedyPolicy
 
@@ -155,10 +160,11 @@ def _rejax_side(trainer: Trainer, key: jax.Array) -> Side:
         }
     algo = type(f"Our{base.__name__}", (OurNetwork, base), {}).create(**common, **own)
     algo = algo.replace(eval_callback=lambda algo, ts, rng: jnp.zeros(()))
+    jit = jit_training if peer_options else jax.jit
     t0 = time.perf_counter()
-    init = jax.jit(algo.init_state).lower(key).compile()
+    init = jit(algo.init_state).lower(key).compile()
     state = init(key)
-    train = jax.jit(lambda ts: algo.train(train_state=ts)[0]).lower(state).compile()
+    train = jit(lambda ts: algo.train(train_state=ts)[0]).lower(state).compile()
     compile_s = time.perf_counter() - t0
     return {
         "name": f"rejax {c.algo.upper()}",
@@ -193,9 +199,14 @@ def _greedy_success(trainer: Trainer, episodes: int) -> Callable[[Callable, Any]
 
 
 def measure(
-    config: TrainConfig, eval_episodes: int, threshold: float, seed: int = 0
+    config: TrainConfig,
+    eval_episodes: int,
+    threshold: float,
+    seed: int = 0,
+    peer_options: bool = False,
 ) -> dict[str, Any]:
-    """Train both sides interval by interval, in turn; see the module docstring."""
+    """Train both sides interval by interval, in turn; see the module docstring
+    (``peer_options``: rejax compiled with ``COMPILER_OPTIONS`` too)."""
     trainer = Trainer(config)
     if trainer.env.obs_onehot_sizes is not None:
         # rejax's network reads observations as numbers: both sides get the one-hot encoding
@@ -203,7 +214,7 @@ def measure(
         config = dataclasses.replace(config, env_kwargs={**config.env_kwargs, "obs_mode": "onehot"})
         trainer = Trainer(config)
     key = jax.random.key(seed)
-    sides = [_our_side(trainer, key), _rejax_side(trainer, key)]
+    sides = [_our_side(trainer, key), _rejax_side(trainer, key, peer_options)]
     success = _greedy_success(trainer, eval_episodes)
     chunk = config.iterations_per_log * config.steps_per_iteration
     for side in sides:
@@ -253,6 +264,7 @@ def measure(
         "threshold": threshold,
         "eval_episodes": eval_episodes,
         "seed": seed,
+        "peer_compiler_options": peer_options,
         "sides": out,
         "wall_time_ratio": theirs["train_s"] / ours["train_s"],
         "peer_best_success": peer_best,
@@ -311,6 +323,8 @@ def table(result: dict[str, Any]) -> str:
         f"{ratio_text(after_first_ratio(result['sides'].values()))}"
     )
     lines.append(f"\n{equal_success(result)}")
+    if result.get("peer_compiler_options"):
+        lines.append("\nRejax compiled with our XLA options (`jaxnav.train.COMPILER_OPTIONS`).")
     return "\n".join(lines)
 
 

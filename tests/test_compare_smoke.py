@@ -236,6 +236,28 @@ def test_train_vs_rejax_pqn_pairs_the_same_pqn() -> None:
     # the same network on both sides: 16 hidden units with LayerNorm, dueling heads
     assert result["network_weights"] == 27 * 16 + 2 * 16 + 17 * 5
     assert "| 16 | 0 | 549 |" in train_vs_rejax.summary([result])
+    assert not result["peer_compiler_options"]
+    assert "Rejax compiled with our XLA options" not in train_vs_rejax.table(result)
+
+
+@pytest.mark.slow
+def test_rejax_compiled_with_our_options_trains_the_same_run(monkeypatch) -> None:
+    """``--train-peer-options``: rejax's programs compiled through ``jit_training`` (with our
+    ``COMPILER_OPTIONS``), the result and its table say so; on a CPU, which ignores the GPU's
+    options, rejax's run is the same run as without them."""
+    pytest.importorskip("rejax")
+    compiled = []
+    jit_training = train_vs_rejax.jit_training
+    monkeypatch.setattr(
+        train_vs_rejax, "jit_training", lambda f, **kw: compiled.append(f) or jit_training(f, **kw)
+    )
+    config = compare.train_config(json.dumps(TINY | {"total_timesteps": 500}))
+    runs = [train_vs_rejax.measure(config, 8, 0.5, 0, options) for options in (False, True)]
+    assert len(compiled) == 2 * 2 + 2  # ours (init, interval) in both runs; rejax's with options
+    assert [r["peer_compiler_options"] for r in runs] == [False, True]
+    assert "Rejax compiled with our XLA options" in train_vs_rejax.table(runs[1])
+    curves = [r["sides"]["rejax DQN"]["curve"] for r in runs]
+    assert [p["success"] for p in curves[0]] == [p["success"] for p in curves[1]]
 
 
 def test_timed_command_marks_the_line_and_reports_failures(tmp_path: Path) -> None:
