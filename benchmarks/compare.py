@@ -3,7 +3,7 @@
     python -m benchmarks.compare [--num-envs 1,16,256,4096,16384] [--envs NAME,...]
         [--steps 200] [--target-s 0.5] [--rounds 3] [--train-config JSON]
         [--train-networks 512,256,128,64;64,64] [--train-seeds 0] [--eval-episodes 256]
-        [--threshold 0.95] [--train-peer-options]
+        [--threshold 0.95] [--final-eval-episodes 2048] [--train-peer-options]
         [--sections env,train,compile] [--out benchmarks/results/compare.json]
     python -m benchmarks.compare --render --out RESULT.json
 
@@ -24,7 +24,9 @@ Sections (each can be left out with ``--sections``):
   runs once per network of ``--train-networks``: by default the config's (the paper's
   512-256-128-64) and rejax's default MLP (64, 64). With the large one both spend most of their
   time in the same gradient arithmetic; with the small one, in what surrounds it.
-  ``--train-peer-options`` compiles rejax's programs with our XLA options too.
+  ``--train-peer-options`` compiles rejax's programs with our XLA options too. Each side's
+  final policy is evaluated once more on ``--final-eval-episodes`` other fresh episodes, which
+  tells two final policies apart where one check of ``--eval-episodes`` cannot.
 - ``compile``: every CLI entry point started twice, with an empty and then a filled persistent
   compilation cache (``benchmarks.compile_time``).
 
@@ -221,6 +223,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--eval-episodes", type=int, default=256, help="greedy episodes per check")
     p.add_argument("--threshold", type=float, default=0.95, help="greedy success to reach")
     p.add_argument(
+        "--final-eval-episodes",
+        type=int,
+        default=2048,
+        help="greedy episodes each side's final policy is evaluated on, 0 for none",
+    )
+    p.add_argument(
         "--train-peer-options",
         action="store_true",
         help="compile rejax's programs with jaxnav.train.COMPILER_OPTIONS too (ours always)",
@@ -250,6 +258,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         p.error("--num-envs, --steps and --rounds must be >= 1")
     if args.eval_episodes < 1 or not 0 < args.threshold <= 1:
         p.error("--eval-episodes must be >= 1, --threshold in (0, 1]")
+    if args.final_eval_episodes < 0:
+        p.error(f"--final-eval-episodes {args.final_eval_episodes}: must be >= 0")
     try:
         args.train_seeds = [int(s) for s in args.train_seeds.split(",") if s.strip()]
     except ValueError:
@@ -320,7 +330,12 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             config = dataclasses.replace(args.train_config, hidden_sizes=hidden_sizes)
             for seed in args.train_seeds:
                 run = train_vs_rejax.measure(
-                    config, args.eval_episodes, args.threshold, seed, args.train_peer_options
+                    config,
+                    args.eval_episodes,
+                    args.threshold,
+                    seed,
+                    args.train_peer_options,
+                    args.final_eval_episodes,
                 )
                 result["train"].append(run | {"config": dataclasses.asdict(config)})
     if "compile" in args.sections:

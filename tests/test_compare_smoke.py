@@ -178,6 +178,30 @@ def test_ratio_after_the_first_interval_leaves_out_the_first_calls(tmp_path: Pat
     assert "| jaxnav PQN | 1.0 | n/a | 0.7 |" in md  # recorded before the first call was apart
 
 
+def test_final_policies_evaluated_on_more_episodes_are_reported(capsys) -> None:
+    """``--final-eval-episodes``: each side's final policy on other fresh episodes, in the
+    run's table with its standard error and in the summary; results without it say n/a."""
+    run = _full_run() | {"final_eval_episodes": 2048}
+    for side, rate in zip(run["sides"].values(), (0.95, 0.9), strict=True):
+        side["final_eval_success"] = rate
+    assert (
+        "Final policies on 2,048 fresh episodes (other than the checks'): jaxnav 0.950 / rejax "
+        "0.900 (standard error at most 0.007)" in train_vs_rejax.table(run)
+    )
+    md = train_vs_rejax.summary([run])
+    assert "| final policy on 2,048 fresh episodes, jaxnav / rejax |" in md
+    assert "| 1.000 / 1.000 | 0.950 / 0.900 |" in md
+    older = _full_run()
+    assert "Final policies" not in train_vs_rejax.table(older)
+    both = train_vs_rejax.summary([run, older])
+    assert "| final policy on N fresh episodes" in both and "| 1.000 / 1.000 | n/a / n/a |" in both
+    assert compare.parse_args([]).final_eval_episodes == 2048
+    with pytest.raises(SystemExit) as e:
+        compare.parse_args(["--final-eval-episodes", "-1"])
+    assert e.value.code == 2
+    assert "--final-eval-episodes -1: must be >= 0" in capsys.readouterr().err
+
+
 def test_render_of_a_file_that_is_not_a_result_exits_2(tmp_path: Path, capsys) -> None:
     bad = tmp_path / "other.json"
     bad.write_text('{"train": [{"seed": 0}]}')
@@ -229,10 +253,12 @@ def test_train_vs_rejax_pqn_pairs_the_same_pqn() -> None:
     tiny = {"env_kwargs": {"size": 5}, "hidden_sizes": [16], "algo": "pqn", "num_envs": 4}
     config = compare.train_config(json.dumps(tiny | {"total_timesteps": 512, "log_interval": 256}))
     assert config.layer_norm and config.rollout_length == 8  # the PQN preset, then the fields
-    result = train_vs_rejax.measure(config, eval_episodes=8, threshold=0.5)
+    result = train_vs_rejax.measure(config, eval_episodes=8, threshold=0.5, final_episodes=16)
     assert list(result["sides"]) == ["jaxnav PQN", "rejax PQN"] and result["algo"] == "pqn"
+    assert result["final_eval_episodes"] == 16
     for s in result["sides"].values():
         assert s["env_steps"] == 512 and [p["env_steps"] for p in s["curve"]] == [256, 512]
+        assert s["final_eval_success"] * 16 == round(s["final_eval_success"] * 16)  # of 16
     # the same network on both sides: 16 hidden units with LayerNorm, dueling heads
     assert result["network_weights"] == 27 * 16 + 2 * 16 + 17 * 5
     assert "| 16 | 0 | 549 |" in train_vs_rejax.summary([result])
