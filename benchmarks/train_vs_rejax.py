@@ -45,8 +45,9 @@ near 0.95 success, 2,048 episodes about 0.005, enough to tell the two final poli
 
 Rejax's programs are compiled as it ships them (``jax.jit``), ours with
 ``jaxnav.train.COMPILER_OPTIONS`` (XLA's concurrent command-buffer scheduling, loops and
-conditionals as CUDA graph nodes: options any JAX program may pass); with ``peer_options``
-rejax's are compiled with them too, which shows how much of the ratio those options make.
+conditionals as CUDA graph nodes, copy insertion by region analysis: options any JAX program
+may pass); with ``peer_options`` rejax's are compiled with them too, which shows how much of
+the ratio those options make.
 """
 
 from __future__ import annotations
