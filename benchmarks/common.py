@@ -39,10 +39,13 @@ def package_version(dist: str) -> str | None:
 
 
 def write_results(out: Path, result: dict[str, Any], markdown: str) -> None:
-    """``out`` (JSON) and the same name with ``.md`` (the printed table)."""
+    """``out`` (JSON) and the same name with ``.md`` (the printed table), each written whole
+    or not at all (a temporary file renamed over it)."""
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(result, indent=2) + "\n")
-    out.with_suffix(".md").write_text(markdown + "\n")
+    for path, text in ((out, json.dumps(result, indent=2)), (out.with_suffix(".md"), markdown)):
+        tmp = path.with_name(f".{path.name}.tmp")
+        tmp.write_text(text + "\n")
+        os.replace(tmp, path)
 
 
 class TimedProgram:

@@ -6,6 +6,7 @@
         [--threshold 0.95] [--final-eval-episodes 2048] [--train-peer-options]
         [--sections env,train,compile] [--out benchmarks/results/compare.json]
     python -m benchmarks.compare --render --out RESULT.json
+    python -m benchmarks.compare --merge RESULT.json... --out MERGED.json
 
 Sections (each can be left out with ``--sections``):
 
@@ -32,7 +33,10 @@ Sections (each can be left out with ``--sections``):
 
 Writes the JSON, a markdown copy of the tables (same name, ``.md``) and the plot (``.png``).
 ``--render`` measures nothing: it writes the markdown of an earlier run's JSON (``--out``) again
-with the tables of this version.
+with the tables of this version. ``--merge`` measures nothing either: it writes one result (JSON
+and markdown, its summary with the means over seeds) of the train runs of several result files
+of the same comparison, such as one seed a process; each file's command and machine stay in
+``merged_from``.
 Nothing here assumes a CPU: on a GPU pass larger sizes, e.g. ``--num-envs
 1024,16384,262144``.
 """
@@ -53,6 +57,7 @@ import jax
 from benchmarks import compile_time, env_throughput, train_vs_rejax
 from benchmarks.common import machine_info, package_version, train_config, write_results
 from jaxnav.config import TrainConfig
+from jaxnav.safe_io import check_output_file
 
 DEFAULT_OUT = Path("benchmarks/results/compare.json")
 SECTIONS = ("env", "train", "compile")
@@ -236,10 +241,20 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--compile-timesteps", type=int, default=16_000, help="steps per CLI run")
     p.add_argument("--sections", default=",".join(SECTIONS), help=f"comma-separated {SECTIONS}")
     p.add_argument("--out", type=Path, default=DEFAULT_OUT, help="JSON output path")
-    p.add_argument(
+    only = p.add_mutually_exclusive_group()
+    only.add_argument(
         "--render", action="store_true", help="rewrite --out's markdown, measure nothing"
     )
+    only.add_argument(
+        "--merge",
+        nargs="+",
+        type=Path,
+        metavar="RESULT",
+        help="write the train runs of these result files as one result to --out, measure nothing",
+    )
     args = p.parse_args(argv)
+    if args.merge:
+        return args
     if args.render:
         if not args.out.is_file():
             p.error(f"--render --out {args.out}: no such result file")
@@ -300,9 +315,83 @@ def markdown(result: dict[str, Any]) -> str:
     return "\n\n".join(parts)
 
 
+# what makes two train runs one comparison, beside their config less its network
+SAME_COMPARISON = ("threshold", "eval_episodes", "final_eval_episodes", "peer_compiler_options")
+
+
+def merged(paths: list[Path], command: str) -> dict[str, Any]:
+    """One result of the train runs of ``paths``, results of the same comparison, ordered by
+    network and seed. ``ValueError`` (one line) naming a file that is not such a result, is of
+    another comparison, or repeats a network and seed."""
+    runs: list[dict[str, Any]] = []
+    sources: list[dict[str, Any]] = []
+    seen: dict[tuple[tuple[int, ...], int], Path] = {}
+    first: dict[str, Any] | None = None
+    for path in paths:
+        try:
+            result = json.loads(path.read_text())
+            file_runs = result["train"]
+            identities = [
+                (comparison(run), (tuple(run["hidden_sizes"]), run["seed"])) for run in file_runs
+            ]
+        except FileNotFoundError:
+            raise ValueError(f"--merge {path}: no such result file") from None
+        except (OSError, ValueError, KeyError, TypeError, AttributeError) as e:
+            raise ValueError(
+                f"--merge {path}: not a train result of this benchmark ({e!r})"
+            ) from None
+        if not file_runs:
+            raise ValueError(f"--merge {path}: holds no train runs")
+        for identity, key in identities:
+            first = identity if first is None else first
+            keys = first.keys() | identity.keys()
+            differ = sorted(k for k in keys if first.get(k) != identity.get(k))
+            if differ:
+                raise ValueError(
+                    f"--merge {path}: another comparison than {paths[0]} (differs in "
+                    f"{', '.join(differ)})"
+                )
+            if key in seen:
+                raise ValueError(
+                    f"--merge {path}: network {'-'.join(map(str, key[0]))} seed {key[1]} is "
+                    f"already in {seen[key]}"
+                )
+            seen[key] = path
+        runs += file_runs
+        sources.append(
+            {"file": str(path), "command": result.get("command"), "machine": result.get("machine")}
+        )
+    networks = list(dict.fromkeys(tuple(run["hidden_sizes"]) for run in runs))
+    runs.sort(key=lambda run: (networks.index(tuple(run["hidden_sizes"])), run["seed"]))
+    return {
+        "machine": sources[0]["machine"],
+        "command": command,
+        "merged_from": sources,
+        "train": runs,
+    }
+
+
+def comparison(run: dict[str, Any]) -> dict[str, Any]:
+    """What a train run compares, less its network: equal for runs ``--merge`` may join."""
+    config = {f"config {k}": v for k, v in run["config"].items() if k != "hidden_sizes"}
+    return config | {k: run.get(k) for k in SAME_COMPARISON}
+
+
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Run the chosen sections, print the tables, write JSON, markdown and the plot."""
     args = parse_args(argv)
+    command = " ".join(["python -m benchmarks.compare", *(sys.argv[1:] if argv is None else argv)])
+    if args.merge:
+        try:
+            check_output_file(args.out)
+            result = merged(args.merge, command)
+        except ValueError as e:
+            print(e, file=sys.stderr)
+            raise SystemExit(2) from None
+        md = markdown(result)
+        print(md)
+        write_results(args.out, result, md)
+        return result
     if args.render:
         try:
             result = json.loads(args.out.read_text())
@@ -320,7 +409,6 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             d: package_version(d) for d in ("navix", "jaxmarl", "rejax", "mujoco-mjx", "flax")
         }
     }
-    command = " ".join(["python -m benchmarks.compare", *(sys.argv[1:] if argv is None else argv)])
     result: dict[str, Any] = {"machine": info, "command": command}
     if "env" in args.sections:
         result["env"] = env_section(args)

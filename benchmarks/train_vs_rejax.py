@@ -458,4 +458,29 @@ def summary(results: list[dict[str, Any]]) -> str:
     for r in results:
         by_network.setdefault(tuple(r["hidden_sizes"]), []).append(r)
     lines += [mean_row(runs) for runs in by_network.values() if len(runs) > 1]
-    return "\n".join(lines)
+    notes = [final_difference(runs) for runs in by_network.values()]
+    return "\n".join(lines + [f"\n{note}" for note in notes if note])
+
+
+def final_difference(runs: list[dict[str, Any]]) -> str | None:
+    """One line for several seeds' runs of one network with final evaluations: the mean of
+    jaxnav's minus rejax's final-policy success, its standard error over the seeds (what
+    another set of seeds would move) and that of the episodes alone; None otherwise."""
+    pairs = [[s.get("final_eval_success") for s in r["sides"].values()] for r in runs]
+    counts = [r.get("final_eval_episodes") for r in runs]
+    if len(runs) < 2 or None in counts or any(None in p for p in pairs):
+        return None
+    k = len(runs)
+    diffs = [ours - theirs for ours, theirs in pairs]
+    mean = sum(diffs) / k
+    over_seeds = math.sqrt(sum((d - mean) ** 2 for d in diffs) / (k - 1) / k)
+    episodes = (
+        math.sqrt(sum(p * (1 - p) / n for pair, n in zip(pairs, counts, strict=True) for p in pair))
+        / k
+    )
+    network = "-".join(map(str, runs[0]["hidden_sizes"]))
+    mean_text = f"{round(mean, 3) + 0.0:+.3f}"  # + 0.0: a rounded -0.0 prints as +0.000
+    return (
+        f"Final policies, jaxnav minus rejax, network {network} over {k} seeds: {mean_text} "
+        f"(standard error over the seeds {over_seeds:.3f}; of the episodes alone {episodes:.3f})"
+    )

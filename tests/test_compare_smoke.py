@@ -202,6 +202,104 @@ def test_final_policies_evaluated_on_more_episodes_are_reported(capsys) -> None:
     assert "--final-eval-episodes -1: must be >= 0" in capsys.readouterr().err
 
 
+def _evaluated_run(seed: int, ours: float, theirs: float, episodes: int = 100) -> dict:
+    """``_full_run`` of ``seed`` whose final policies succeeded in ``ours`` and ``theirs``."""
+    run = _full_run() | {"seed": seed, "final_eval_episodes": episodes}
+    for side, rate in zip(run["sides"].values(), (ours, theirs), strict=True):
+        side["final_eval_success"] = rate
+    return run
+
+
+def test_final_policies_difference_over_seeds_with_both_standard_errors() -> None:
+    runs = [_evaluated_run(0, 0.9, 0.8), _evaluated_run(1, 0.5, 0.5), _evaluated_run(2, 1.0, 0.9)]
+    # differences 0.1, 0, 0.1: mean 1/15, sample sd sqrt(1/300), over 3 seeds sqrt(1/900)
+    episodes = ((0.09 + 0.16 + 0.25 + 0.25 + 0 + 0.09) / 100) ** 0.5 / 3  # 0.031
+    assert train_vs_rejax.final_difference(runs) == (
+        "Final policies, jaxnav minus rejax, network 16 over 3 seeds: +0.067 (standard error "
+        f"over the seeds 0.033; of the episodes alone {episodes:.3f})"
+    )
+    assert train_vs_rejax.final_difference(runs) in train_vs_rejax.summary(runs)
+    assert train_vs_rejax.final_difference(runs[:1]) is None  # one seed: no spread
+    assert train_vs_rejax.final_difference([*runs, _full_run()]) is None  # one not evaluated
+
+
+def _result_file(path: Path, runs: list[dict], command: str) -> Path:
+    path.write_text(json.dumps({"machine": {"date": command}, "command": command, "train": runs}))
+    return path
+
+
+def test_merge_writes_one_result_of_runs_from_several_processes(tmp_path: Path, capsys) -> None:
+    """Seeds run one a process (``--train-seeds 1``, then 0) merge into one result: its runs
+    in seed order, its summary's means and difference line, each file's command kept."""
+    seed1 = _result_file(tmp_path / "s1.json", [_evaluated_run(1, 0.5, 0.5)], "c1")
+    seed0 = _result_file(tmp_path / "s0.json", [_evaluated_run(0, 0.9, 0.8)], "c0")
+    out = tmp_path / "merged.json"
+    result = compare.main(["--merge", str(seed1), str(seed0), "--out", str(out)])
+    data = json.loads(out.read_text())
+    assert data == json.loads(json.dumps(result))
+    assert [run["seed"] for run in data["train"]] == [0, 1]
+    assert [(m["file"], m["command"]) for m in data["merged_from"]] == [
+        (str(seed1), "c1"),
+        (str(seed0), "c0"),
+    ]
+    assert data["machine"] == {"date": "c1"} and data["command"].startswith(
+        "python -m benchmarks.compare --merge"
+    )
+    md = out.with_suffix(".md").read_text()
+    assert "| 16 | mean of 2 |" in md and "over 2 seeds: +0.050" in md
+    assert md == compare.markdown(data) + "\n" and md.strip() in capsys.readouterr().out
+    assert not list(tmp_path.glob(".*.tmp"))  # written whole: no temporary left
+
+
+@pytest.mark.parametrize(
+    "case, message",
+    [
+        ("missing", "no such result file"),
+        ("not json", "not a train result of this benchmark"),
+        ("no train runs", "holds no train runs"),
+        ("other steps", "another comparison than {a} (differs in config total_timesteps)"),
+        ("peer options", "another comparison than {a} (differs in peer_compiler_options)"),
+        ("same seed", "network 16 seed 0 is already in {a}"),
+    ],
+)
+def test_merge_refuses_what_is_not_one_comparison(
+    tmp_path: Path, capsys, case: str, message: str
+) -> None:
+    a = _result_file(tmp_path / "a.json", [_evaluated_run(0, 0.9, 0.8)], "c")
+    b = tmp_path / "b.json"
+    other = _evaluated_run(1, 0.9, 0.8)
+    if case == "not json":
+        b.write_text("{")
+    elif case == "no train runs":
+        _result_file(b, [], "c")
+    elif case == "other steps":
+        other["config"] = other["config"] | {"total_timesteps": 6}
+        _result_file(b, [other], "c")
+    elif case == "peer options":
+        _result_file(b, [other | {"peer_compiler_options": True}], "c")
+    elif case == "same seed":
+        _result_file(b, [_evaluated_run(0, 0.5, 0.5)], "c")
+    out = tmp_path / "merged.json"
+    with pytest.raises(SystemExit) as e:
+        compare.main(["--merge", str(a), str(b), "--out", str(out)])
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert err == f"--merge {b}: {message.format(a=a)}\n" or (
+        case == "not json" and err.startswith(f"--merge {b}: {message} (")
+    )
+    assert not out.exists()
+
+
+def test_merge_and_render_are_one_or_the_other(tmp_path: Path, capsys) -> None:
+    with pytest.raises(SystemExit) as e:
+        compare.parse_args(["--render", "--merge", "a.json", "--out", "b.json"])
+    assert e.value.code == 2 and "not allowed with" in capsys.readouterr().err
+    a = _result_file(tmp_path / "a.json", [_evaluated_run(0, 0.9, 0.8)], "c")
+    with pytest.raises(SystemExit) as e:
+        compare.main(["--merge", str(a), "--out", str(tmp_path)])
+    assert e.value.code == 2 and "is a directory" in capsys.readouterr().err
+
+
 def test_render_of_a_file_that_is_not_a_result_exits_2(tmp_path: Path, capsys) -> None:
     bad = tmp_path / "other.json"
     bad.write_text('{"train": [{"seed": 0}]}')
