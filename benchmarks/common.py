@@ -39,13 +39,17 @@ def package_version(dist: str) -> str | None:
 
 
 def write_results(out: Path, result: dict[str, Any], markdown: str) -> None:
-    """``out`` (JSON) and the same name with ``.md`` (the printed table), each written whole
-    or not at all (a temporary file renamed over it)."""
+    """``out`` (JSON) and the same name with ``.md`` (the printed table)."""
     out.parent.mkdir(parents=True, exist_ok=True)
-    for path, text in ((out, json.dumps(result, indent=2)), (out.with_suffix(".md"), markdown)):
-        tmp = path.with_name(f".{path.name}.tmp")
-        tmp.write_text(text + "\n")
-        os.replace(tmp, path)
+    write_whole(out, json.dumps(result, indent=2) + "\n")
+    write_whole(out.with_suffix(".md"), markdown + "\n")
+
+
+def write_whole(path: Path, text: str) -> None:
+    """``path`` holds ``text`` whole or is left as it was: a temporary file renamed over it."""
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
 
 
 class TimedProgram:

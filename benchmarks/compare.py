@@ -55,7 +55,13 @@ from typing import Any
 import jax
 
 from benchmarks import compile_time, env_throughput, train_vs_rejax
-from benchmarks.common import machine_info, package_version, train_config, write_results
+from benchmarks.common import (
+    machine_info,
+    package_version,
+    train_config,
+    write_results,
+    write_whole,
+)
 from jaxnav.config import TrainConfig
 from jaxnav.safe_io import check_output_file
 
@@ -240,7 +246,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     )
     p.add_argument("--compile-timesteps", type=int, default=16_000, help="steps per CLI run")
     p.add_argument("--sections", default=",".join(SECTIONS), help=f"comma-separated {SECTIONS}")
-    p.add_argument("--out", type=Path, default=DEFAULT_OUT, help="JSON output path")
+    p.add_argument("--out", type=Path, default=None, help=f"JSON output path ({DEFAULT_OUT})")
     only = p.add_mutually_exclusive_group()
     only.add_argument(
         "--render", action="store_true", help="rewrite --out's markdown, measure nothing"
@@ -254,7 +260,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     )
     args = p.parse_args(argv)
     if args.merge:
+        if args.out is None:  # never the default: a merge would replace the full comparison
+            p.error("--merge: give --out, the path of the merged result")
         return args
+    args.out = DEFAULT_OUT if args.out is None else args.out
     if args.render:
         if not args.out.is_file():
             p.error(f"--render --out {args.out}: no such result file")
@@ -402,7 +411,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                 file=sys.stderr,
             )
             raise SystemExit(2) from None
-        args.out.with_suffix(".md").write_text(md + "\n")
+        write_whole(args.out.with_suffix(".md"), md + "\n")
         return result
     info = machine_info() | {
         "versions": {

@@ -294,6 +294,10 @@ def test_merge_and_render_are_one_or_the_other(tmp_path: Path, capsys) -> None:
     with pytest.raises(SystemExit) as e:
         compare.parse_args(["--render", "--merge", "a.json", "--out", "b.json"])
     assert e.value.code == 2 and "not allowed with" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as e:
+        compare.parse_args(["--merge", "a.json"])  # not over the default result
+    assert e.value.code == 2 and "--merge: give --out" in capsys.readouterr().err
+    assert compare.parse_args([]).out == compare.DEFAULT_OUT
     a = _result_file(tmp_path / "a.json", [_evaluated_run(0, 0.9, 0.8)], "c")
     with pytest.raises(SystemExit) as e:
         compare.main(["--merge", str(a), "--out", str(tmp_path)])
