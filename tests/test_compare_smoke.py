@@ -178,12 +178,18 @@ def test_ratio_after_the_first_interval_leaves_out_the_first_calls(tmp_path: Pat
     assert "| jaxnav PQN | 1.0 | n/a | 0.7 |" in md  # recorded before the first call was apart
 
 
+def _evaluated_run(seed: int, ours: float, theirs: float, episodes: int = 100) -> dict:
+    """``_full_run`` of ``seed`` whose final policies succeeded in ``ours`` and ``theirs``."""
+    run = _full_run() | {"seed": seed, "final_eval_episodes": episodes}
+    for side, rate in zip(run["sides"].values(), (ours, theirs), strict=True):
+        side["final_eval_success"] = rate
+    return run
+
+
 def test_final_policies_evaluated_on_more_episodes_are_reported(capsys) -> None:
     """``--final-eval-episodes``: each side's final policy on other fresh episodes, in the
     run's table with its standard error and in the summary; results without it say n/a."""
-    run = _full_run() | {"final_eval_episodes": 2048}
-    for side, rate in zip(run["sides"].values(), (0.95, 0.9), strict=True):
-        side["final_eval_success"] = rate
+    run = _evaluated_run(0, 0.95, 0.9, episodes=2048)
     assert (
         "Final policies on 2,048 fresh episodes (other than the checks'): jaxnav 0.950 / rejax "
         "0.900 (standard error at most 0.007)" in train_vs_rejax.table(run)
@@ -200,14 +206,6 @@ def test_final_policies_evaluated_on_more_episodes_are_reported(capsys) -> None:
         compare.parse_args(["--final-eval-episodes", "-1"])
     assert e.value.code == 2
     assert "--final-eval-episodes -1: must be >= 0" in capsys.readouterr().err
-
-
-def _evaluated_run(seed: int, ours: float, theirs: float, episodes: int = 100) -> dict:
-    """``_full_run`` of ``seed`` whose final policies succeeded in ``ours`` and ``theirs``."""
-    run = _full_run() | {"seed": seed, "final_eval_episodes": episodes}
-    for side, rate in zip(run["sides"].values(), (ours, theirs), strict=True):
-        side["final_eval_success"] = rate
-    return run
 
 
 def test_final_policies_difference_over_seeds_with_both_standard_errors() -> None:
