@@ -15,6 +15,7 @@ from typing import Any
 import jax
 
 from jaxnav.config import TrainConfig
+from jaxnav.run_dir import cpu_info
 
 
 def machine_info() -> dict[str, Any]:
@@ -22,6 +23,7 @@ def machine_info() -> dict[str, Any]:
         "platform": platform.platform(),
         "python": platform.python_version(),
         "cpu_count": os.cpu_count(),
+        "cpu": cpu_info(),
         "jax_version": jax.__version__,
         "backend": jax.default_backend(),
         "devices": [str(d) for d in jax.devices()],
@@ -29,6 +31,25 @@ def machine_info() -> dict[str, Any]:
         "loadavg_1m_at_start": os.getloadavg()[0] if hasattr(os, "getloadavg") else None,
         "gymnax_version": package_version("gymnax"),
     }
+
+
+def machine_text(machine: dict[str, Any]) -> str:
+    """``machine_info``'s backend, cores and CPU in a few words, for a table's or plot's head:
+    "cpu (2 cores; AMD EPYC, family 25 model 1, AVX2, no AVX-512)". Results recorded before
+    the CPU was give the cores alone."""
+    details = [f"{machine['cpu_count']} cores"]
+    cpu = machine.get("cpu") or {}
+    if cpu.get("model"):
+        details.append(cpu["model"])
+    if cpu.get("family") is not None:
+        details.append(f"family {cpu['family']} model {cpu['model_number']}")
+    features = cpu.get("features")
+    if features is not None:
+        details += [name.upper() for name, present in features.items() if present]
+        if not features["avx512f"]:
+            details.append("no AVX-512")
+    cores, *rest = details
+    return f"{machine['backend']} ({cores}{'; ' + ', '.join(rest) if rest else ''})"
 
 
 def package_version(dist: str) -> str | None:

@@ -57,6 +57,7 @@ import jax
 from benchmarks import compile_time, env_throughput, train_vs_rejax
 from benchmarks.common import (
     machine_info,
+    machine_text,
     package_version,
     train_config,
     write_results,
@@ -447,7 +448,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     print(md)
     write_results(args.out, result, md)
     if "env" in result:
-        title = f"{info['backend']} ({info['cpu_count']} cores), {info['date'][:10]}"
+        title = f"{machine_text(info)}, {info['date'][:10]}"
         plot(result["env"]["rows"], args.out.with_suffix(".png"), title)
     return result
 

@@ -62,7 +62,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from benchmarks.common import machine_info, write_results
+from benchmarks.common import machine_info, machine_text, write_results
 from jaxnav.agents import dqn
 from jaxnav.agents.dqn import COMPUTE_DTYPES
 from jaxnav.cli import one_line, parse_bool, parse_env_arg
@@ -373,8 +373,7 @@ def markdown(result: dict[str, Any]) -> str:
     head = (
         f"{result['env']}{kwargs}, network {'-'.join(map(str, first['hidden_sizes']))} "
         f"{first['compute_dtype']} with {norm}, {result['iterations']} iterations per timed "
-        f"run, median of {result['rounds']}; {m['backend']} ({m['cpu_count']} cores), "
-        f"{m['date'][:10]}"
+        f"run, median of {result['rounds']}; {machine_text(m)}, {m['date'][:10]}"
     )
     return head + "\n\n" + table(result["results"], result["env_alone"])
 
@@ -405,8 +404,8 @@ def plot(result: dict[str, Any], out: Path) -> None:
     bound (dotted, same colour) and the env-alone bound (black, dashed)."""
     rows, env_alone, m = result["results"], result["env_alone"], result["machine"]
     title = (
-        f"{result['env']}: training env steps/s and its bounds; {m['backend']} "
-        f"({m['cpu_count']} cores), {m['date'][:10]}"
+        f"{result['env']}: training env steps/s and its bounds; {machine_text(m)}, "
+        f"{m['date'][:10]}"
     )
     import matplotlib
 

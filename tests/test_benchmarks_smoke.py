@@ -214,3 +214,30 @@ def test_layer_norm_blocks_refuses_a_width_the_kernels_do_not_take(capsys) -> No
         lnb.main(["--widths", "100"])
     assert exit_info.value.code == 2
     assert "--widths 100: the kernels take 64, 128, 256" in capsys.readouterr().err
+
+
+# /proc/cpuinfo of a 2-core x86 host (two processor blocks) and of an ARM one (other fields)
+CPUINFO_X86 = (
+    "processor\t: 0\nvendor_id\t: AuthenticAMD\ncpu family\t: 25\nmodel\t\t: 1\n"
+    "model name\t: AMD EPYC\nflags\t\t: fpu sse2 avx2 fma\n\n"
+    "processor\t: 1\nmodel name\t: another\nflags\t\t: avx2 avx512f\n"
+)
+CPUINFO_ARM = "processor\t: 0\nBogoMIPS\t: 50.00\nFeatures\t: fp asimd\nCPU part\t: 0xd0c\n"
+
+
+def test_machine_text_names_the_cpu_and_its_vector_instructions() -> None:
+    """A CPU result's head says which CPU (a run's speed and numbers differ between CPUs with
+    and without AVX-512); what the system does not say is unknown, not absent."""
+    from benchmarks.common import machine_text
+    from jaxnav.run_dir import cpu_info
+
+    x86 = cpu_info(CPUINFO_X86)
+    features = {"avx2": True, "avx512f": False, "avx512_bf16": False, "amx_tile": False}
+    assert x86 == {"model": "AMD EPYC", "family": 25, "model_number": 1, "features": features}
+    assert machine_text({"backend": "cpu", "cpu_count": 2, "cpu": x86}) == (
+        "cpu (2 cores; AMD EPYC, family 25 model 1, AVX2, no AVX-512)"
+    )
+    arm = cpu_info(CPUINFO_ARM)
+    assert arm == {"model": None, "family": None, "model_number": None, "features": None}
+    assert machine_text({"backend": "cpu", "cpu_count": 4, "cpu": arm}) == "cpu (4 cores)"
+    assert machine_text({"backend": "gpu", "cpu_count": 16}) == "gpu (16 cores)"  # older results

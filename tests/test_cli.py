@@ -33,6 +33,7 @@ def test_train_writes_a_complete_run(tiny_run):
     assert config["config"]["env_kwargs"] == {"size": 7}
     assert config["network"]["hidden_sizes"] == [32, 32]
     assert config["environment"]["packages"]["jax"]
+    assert config["environment"]["cpu"] == run_dir.cpu_info()  # where its times were measured
     rows = list(csv.DictReader((tiny_run / "metrics.csv").open()))
     assert len(rows) == 2 * 4  # seeds x logging intervals
     assert {"env_steps", "mean_return", "success_rate", "loss", "epsilon"} <= set(rows[0])
