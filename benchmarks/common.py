@@ -41,7 +41,7 @@ def machine_text(machine: dict[str, Any]) -> str:
     cpu = machine.get("cpu") or {}
     if cpu.get("model"):
         details.append(cpu["model"])
-    if cpu.get("family") is not None:
+    if cpu.get("family") is not None and cpu.get("model_number") is not None:
         details.append(f"family {cpu['family']} model {cpu['model_number']}")
     features = cpu.get("features")
     if features is not None:
