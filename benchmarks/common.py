@@ -37,8 +37,7 @@ def machine_text(machine: dict[str, Any]) -> str:
     """``machine_info``'s backend, cores and CPU in a few words, for a table's or plot's head:
     "cpu (2 cores; AMD EPYC, family 25 model 1, AVX2, no AVX-512)". Results recorded before
     the CPU was give the cores alone."""
-    details = [f"{machine['cpu_count']} cores"]
-    cpu = machine.get("cpu") or {}
+    cpu, details = machine.get("cpu") or {}, []
     if cpu.get("model"):
         details.append(cpu["model"])
     if cpu.get("family") is not None and cpu.get("model_number") is not None:
@@ -48,8 +47,8 @@ def machine_text(machine: dict[str, Any]) -> str:
         details += [name.upper() for name, present in features.items() if present]
         if not features["avx512f"]:
             details.append("no AVX-512")
-    cores, *rest = details
-    return f"{machine['backend']} ({cores}{'; ' + ', '.join(rest) if rest else ''})"
+    cores = f"{machine['cpu_count']} cores" + (f"; {', '.join(details)}" if details else "")
+    return f"{machine['backend']} ({cores})"
 
 
 def package_version(dist: str) -> str | None:

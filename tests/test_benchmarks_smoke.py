@@ -226,8 +226,8 @@ CPUINFO_ARM = "processor\t: 0\nBogoMIPS\t: 50.00\nFeatures\t: fp asimd\nCPU part
 
 
 def test_machine_text_names_the_cpu_and_its_vector_instructions() -> None:
-    """A CPU result's head says which CPU (a run's speed and numbers differ between CPUs with
-    and without AVX-512); what the system does not say is unknown, not absent."""
+    """A CPU result's head says which CPU (a run's speed differs between CPUs with and
+    without AVX-512); what the system does not say is unknown, not absent."""
     from benchmarks.common import machine_text
     from jaxnav.run_dir import cpu_info
 
