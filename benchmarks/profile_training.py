@@ -1,7 +1,8 @@
 """Where a training iteration's GPU time goes: device kernels of one logging interval, by kind.
 
     python -m benchmarks.profile_training [--env RobotNav-v0] [--algo pqn] [--config JSON]
-        [--iterations 2] [--repeats 2] [--out benchmarks/results/profile_training.json]
+        [--iterations 2] [--repeats 2] [--loops-on-host]
+        [--out benchmarks/results/profile_training.json]
 
 The env's preset for the algorithm (``TrainConfig.for_env``), then ``--config``'s ``TrainConfig``
 fields, with a logging interval of ``--iterations`` iterations; ``Trainer.run(state, log, 1)``
@@ -17,6 +18,13 @@ share, the kernels that took longest, and where the device sat idle within the i
 kernels the device waited for; the ``repeats - 1`` longest waits, the host's between
 intervals, left out). Needs an accelerator: a CPU run's trace has no
 device kernels and the script says so in one line (exit 2).
+
+The program is compiled with ``COMPILER_OPTIONS``, as training compiles it, so its loops and
+conditionals run as CUDA graph nodes; the trace then shows few of the kernels inside them (the
+grid's DQN at 4,096 envs: 194 kernels an iteration where its 32 gradient steps run some 2,000,
+and the device "idle" for 87% of the span). ``--loops-on-host`` leaves loops and conditionals
+out of the command buffers, so that every trip's kernels are in the trace: a slower program
+than training's (the host launches each trip), whose kernels are the same.
 """
 
 from __future__ import annotations
@@ -36,7 +44,20 @@ import jax.numpy as jnp
 
 from benchmarks.common import machine_info, train_config, write_results
 from jaxnav.config import TrainConfig
-from jaxnav.train import Trainer, jit_training
+from jaxnav.train import COMPILER_OPTIONS, Trainer
+
+# command-buffer kinds that make a loop or conditional one CUDA graph node
+LOOP_COMMANDS = ("WHILE", "CONDITIONAL")
+
+
+def compiler_options(loops_on_host: bool) -> dict[str, Any]:
+    """Training's ``COMPILER_OPTIONS``; with ``loops_on_host``, without ``LOOP_COMMANDS``."""
+    if not loops_on_host:
+        return dict(COMPILER_OPTIONS)
+    kinds = COMPILER_OPTIONS["xla_gpu_enable_command_buffer"].split(",")
+    kept = ",".join(k for k in kinds if k not in LOOP_COMMANDS)
+    return {**COMPILER_OPTIONS, "xla_gpu_enable_command_buffer": kept}
+
 
 # kind -> substrings of a kernel's name (first match wins, in this order)
 KINDS: dict[str, tuple[str, ...]] = {
@@ -117,14 +138,19 @@ def summarize(kernels: list[dict[str, Any]], repeats: int = 1) -> dict[str, Any]
     }
 
 
-def profile(config: TrainConfig, iterations: int, repeats: int) -> dict[str, Any]:
+def profile(
+    config: TrainConfig, iterations: int, repeats: int, loops_on_host: bool = False
+) -> dict[str, Any]:
     steps = iterations * config.steps_per_iteration
     log = max(1, -(-config.first_learning_iteration // iterations))
     config = dataclasses.replace(config, log_interval=steps, total_timesteps=steps * (log + 1))
     trainer = Trainer(config)
     state = jax.jit(trainer.init)(jax.random.key(0))
     # with the interval's metrics, as training computes them (without, XLA drops their work)
-    interval = jit_training(lambda ts: trainer.run(ts, jnp.int32(log), 1))
+    interval = jax.jit(
+        lambda ts: trainer.run(ts, jnp.int32(log), 1),
+        compiler_options=compiler_options(loops_on_host),
+    )
     interval = interval.lower(state).compile()
     for _ in range(2):
         jax.block_until_ready(interval(state))
@@ -139,6 +165,7 @@ def profile(config: TrainConfig, iterations: int, repeats: int) -> dict[str, Any
         "algo": config.algo,
         "iterations": iterations,
         "repeats": repeats,
+        "loops_on_host": loops_on_host,
         "env_steps_per_repeat": steps,
         "config": {
             "num_envs": config.num_envs,
@@ -161,6 +188,13 @@ def markdown(result: dict[str, Any]) -> str:
         f"({result['env_steps_per_repeat']:,} env steps each; {c['num_envs']:,} envs, "
         f"{c['updates_per_iteration']} gradient steps of {c['minibatch_size']:,} an iteration, "
         f"network {'-'.join(map(str, c['hidden_sizes']))} in {c['compute_dtype']}).\n",
+        (
+            "Loops and conditionals launched by the host (`--loops-on-host`): every trip's "
+            "kernels are in the trace, in a slower program than training's.\n"
+            if result.get("loops_on_host")
+            else "Loops and conditionals as CUDA graph nodes, as training compiles them: the "
+            "trace shows few of the kernels inside them (`--loops-on-host` shows them all).\n"
+        ),
         f"Span {span / 1e3:.1f} ms, kernels busy {busy / 1e3:.1f} ms ({busy / span:.0%} of the "
         f"span), {result['kernels']:,} kernels "
         f"({result['kernels'] / (result['repeats'] * result['iterations']):,.0f} an iteration).\n",
@@ -197,6 +231,12 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--config", default="{}", help="JSON TrainConfig fields after the preset")
     p.add_argument("--iterations", type=int, default=2, help="iterations per logging interval")
     p.add_argument("--repeats", type=int, default=2, help="intervals traced")
+    p.add_argument(
+        "--loops-on-host",
+        action="store_true",
+        help="loops and conditionals outside the CUDA graphs, so that the trace has every "
+        "trip's kernels (a slower program than training's)",
+    )
     p.add_argument("--out", type=Path, default=Path("benchmarks/results/profile_training.json"))
     args = p.parse_args(argv)
     if min(args.iterations, args.repeats) < 1:
@@ -206,7 +246,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     except (ValueError, TypeError) as e:  # JSONDecodeError is a ValueError
         p.error(f"--config {args.config!r}: {e}")
     try:
-        result = profile(config, args.iterations, args.repeats)
+        result = profile(config, args.iterations, args.repeats, args.loops_on_host)
     except ValueError as e:
         print(f"benchmarks.profile_training: error: {e}", file=sys.stderr)
         raise SystemExit(2) from None

@@ -127,6 +127,24 @@ def test_multiprocess_smoke(tmp_path: Path) -> None:
     assert "| envs | bitwise equal | bitwise equal |" in out.with_suffix(".md").read_text()
 
 
+def test_profile_training_can_leave_loops_out_of_the_cuda_graphs() -> None:
+    """By default the profiled program is compiled as training is; ``--loops-on-host`` drops
+    only the loop and conditional command kinds, so the trace has every trip's kernels."""
+    from benchmarks import profile_training as pt
+    from jaxnav.train import COMPILER_OPTIONS
+
+    assert pt.compiler_options(False) == COMPILER_OPTIONS
+    host = pt.compiler_options(True)
+    kinds = COMPILER_OPTIONS["xla_gpu_enable_command_buffer"].split(",")
+    assert {"WHILE", "CONDITIONAL"} <= set(kinds)
+    assert host["xla_gpu_enable_command_buffer"].split(",") == [
+        k for k in kinds if k not in ("WHILE", "CONDITIONAL")
+    ]
+    assert {k: v for k, v in host.items() if k != "xla_gpu_enable_command_buffer"} == {
+        k: v for k, v in COMPILER_OPTIONS.items() if k != "xla_gpu_enable_command_buffer"
+    }
+
+
 def test_profile_training_sums_device_kernels_by_kind(tmp_path: Path, capsys) -> None:
     from benchmarks import profile_training as pt
 
