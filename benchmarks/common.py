@@ -36,7 +36,7 @@ def machine_info() -> dict[str, Any]:
 def machine_text(machine: dict[str, Any]) -> str:
     """``machine_info``'s backend, cores and CPU in a few words, for a table's or plot's head:
     "cpu (2 cores; AMD EPYC, family 25 model 1, AVX2, no AVX-512)". Results recorded before
-    the CPU was give the cores alone."""
+    the CPU was recorded give the cores alone."""
     cpu, details = machine.get("cpu") or {}, []
     if cpu.get("model"):
         details.append(cpu["model"])
