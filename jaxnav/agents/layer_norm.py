@@ -12,13 +12,14 @@ what ``flax.linen.LayerNorm`` followed by ``nn.relu`` does, with the Dense bias 
   recomputes the normalized values from them.
 
 Two implementations of that math. ``pallas=True``: Pallas kernels (Triton on a GPU), one pass
-over each block of rows forward (read ``z``, write the output) and one backward (read the
-output's gradient and ``z``, write ``z``'s gradient and each instance's column sums of the three
-parameter gradients), where XLA's fusions of the same function read each activation several
-times (with flax's LayerNorm, reductions took 44% of the GPU's kernel time:
-``benchmarks/results/archive/profile_training_h100_RobotNav-v0_flax_norm.md``). On a backend
-without Triton the kernels run in Pallas's interpreter (tests), and shapes they do not take
-(``kernel_fits``) use the jnp form. ``pallas=False``: jnp, which XLA fuses as it can.
+over each block of rows forward (read ``z``, write the output and the residuals) and one
+backward (read the output's gradient and ``z``, write ``z``'s gradient and each instance's
+column sums of the three parameter gradients), where XLA's fusions of the same function read
+each activation several times (with flax's LayerNorm, reductions took 44% of the GPU's kernel
+time: ``benchmarks/results/archive/profile_training_h100_RobotNav-v0_flax_norm.md``). The
+kernels run where a gradient is taken; a call without one (acting, evaluation) is the jnp form.
+On a backend without Triton the kernels run in Pallas's interpreter (tests), and shapes they do
+not take (``kernel_fits``) use the jnp form. ``pallas=False``: jnp, which XLA fuses as it can.
 
 XLA cannot split a kernel's rows over devices. Given a ``mesh`` of several devices, the kernels
 run on each device's rows (``shard_map``, the rows split over ``rows_axis``, a vmapped seed
@@ -296,7 +297,10 @@ def _backward_pallas(grad, z, dense_bias, scale, bias, mean, rstd):
 # ----------------------------------------------------------------------------- custom_vjp
 @functools.partial(jax.custom_vjp, nondiff_argnums=(0,))
 def _layer_norm_relu(kernel: bool, z, dense_bias, scale, bias):
-    return (_forward_pallas if kernel else _forward_jnp)(z, dense_bias, scale, bias)[0]
+    # Undifferentiated calls (acting, evaluation) keep no residuals: XLA fuses the jnp form with
+    # the products around it, where the kernel is a launch of its own (GridMaze-v0's PQN at
+    # 32,768 envs on one H200: 1.2% less an iteration; benchmarks/RESULTS.md)
+    return _forward_jnp(z, dense_bias, scale, bias)[0]
 
 
 def _layer_norm_relu_fwd(kernel: bool, z, dense_bias, scale, bias):
