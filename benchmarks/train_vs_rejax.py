@@ -54,6 +54,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import statistics
 import sys
 import time
 from collections.abc import Callable, Iterable
@@ -458,18 +459,30 @@ def summary(results: list[dict[str, Any]]) -> str:
     for r in results:
         by_network.setdefault(tuple(r["hidden_sizes"]), []).append(r)
     lines += [mean_row(runs) for runs in by_network.values() if len(runs) > 1]
-    notes = [final_difference(runs) for runs in by_network.values()]
+    notes = [
+        note(runs) for runs in by_network.values() for note in (final_difference, final_spread)
+    ]
     return "\n".join(lines + [f"\n{note}" for note in notes if note])
+
+
+def _final_pairs(runs: list[dict[str, Any]]) -> list[list[float]] | None:
+    """Each run's (jaxnav, rejax) final-policy success, for several seeds' runs that all
+    have a final evaluation; None otherwise (one seed has no spread)."""
+    pairs = [[s.get("final_eval_success") for s in r["sides"].values()] for r in runs]
+    counts = [r.get("final_eval_episodes") for r in runs]
+    if len(runs) < 2 or None in counts or any(None in p for p in pairs):
+        return None
+    return pairs
 
 
 def final_difference(runs: list[dict[str, Any]]) -> str | None:
     """One line for several seeds' runs of one network with final evaluations: the mean of
     jaxnav's minus rejax's final-policy success, its standard error over the seeds (what
     another set of seeds would move) and that of the episodes alone; None otherwise."""
-    pairs = [[s.get("final_eval_success") for s in r["sides"].values()] for r in runs]
-    counts = [r.get("final_eval_episodes") for r in runs]
-    if len(runs) < 2 or None in counts or any(None in p for p in pairs):
+    pairs = _final_pairs(runs)
+    if pairs is None:
         return None
+    counts = [r["final_eval_episodes"] for r in runs]
     k = len(runs)
     diffs = [ours - theirs for ours, theirs in pairs]
     mean = sum(diffs) / k
@@ -483,4 +496,34 @@ def final_difference(runs: list[dict[str, Any]]) -> str | None:
     return (
         f"Final policies, jaxnav minus rejax, network {network} over {k} seeds: {mean_text} "
         f"(standard error over the seeds {over_seeds:.3f}; of the episodes alone {episodes:.3f})"
+    )
+
+
+def interquartile_mean(values: list[float]) -> float:
+    """The mean of the middle half: ``len // 4`` values trimmed at each end (rliable's IQM,
+    ``scipy.stats.trim_mean(values, 0.25)``), robust to one run that collapses."""
+    ordered = sorted(values)
+    cut = len(ordered) // 4
+    middle = ordered[cut : len(ordered) - cut]
+    return sum(middle) / len(middle)
+
+
+def final_spread(runs: list[dict[str, Any]]) -> str | None:
+    """One line for several seeds' runs of one network with final evaluations: each side's
+    median, interquartile mean and range of final-policy success over the seeds, where the
+    mean alone hides whether one side is ahead on most seeds or behind on one; None
+    otherwise."""
+    pairs = _final_pairs(runs)
+    if pairs is None:
+        return None
+    sides = [sorted(side) for side in zip(*pairs, strict=True)]
+
+    def each(stat: Callable[[list[float]], float]) -> str:
+        return " / ".join(f"{stat(side):.3f}" for side in sides)
+
+    network = "-".join(map(str, runs[0]["hidden_sizes"]))
+    return (
+        f"Final policies of network {network} over its {len(runs)} seeds, jaxnav / rejax: "
+        f"median {each(statistics.median)}, interquartile mean {each(interquartile_mean)}, "
+        f"lowest {each(min)}, highest {each(max)}"
     )

@@ -221,6 +221,28 @@ def test_final_policies_difference_over_seeds_with_both_standard_errors() -> Non
     assert train_vs_rejax.final_difference([*runs, _full_run()]) is None  # one not evaluated
 
 
+
+def test_final_policies_median_interquartile_mean_and_range_over_seeds() -> None:
+    """One collapsed run pulls a side's mean down; the median and interquartile mean say
+    which side is ahead on most seeds."""
+    ours, theirs = (0.97, 0.96, 0.98, 0.95, 0.97), (0.99, 0.98, 0.99, 0.98, 0.60)
+    runs = [_evaluated_run(i, o, t) for i, (o, t) in enumerate(zip(ours, theirs, strict=True))]
+    # 5 seeds: one trimmed at each end, the interquartile mean of the middle three
+    assert train_vs_rejax.final_spread(runs) == (
+        "Final policies of network 16 over its 5 seeds, jaxnav / rejax: median 0.970 / 0.980, "
+        "interquartile mean 0.967 / 0.983, lowest 0.950 / 0.600, highest 0.980 / 0.990"
+    )
+    assert train_vs_rejax.final_spread(runs) in train_vs_rejax.summary(runs)
+    assert train_vs_rejax.final_spread(runs[:1]) is None
+    assert train_vs_rejax.final_spread([*runs, _full_run()]) is None
+
+
+def test_interquartile_mean_trims_a_quarter_at_each_end() -> None:
+    assert train_vs_rejax.interquartile_mean([1.0, 0.0, 0.5]) == 0.5  # 3 // 4 = 0: the mean
+    assert train_vs_rejax.interquartile_mean([0.0, 1.0, 2.0, 3.0, 100.0]) == 2.0
+    values = [float(v) for v in range(16)] + [1e6]  # 17 // 4 = 4 trimmed at each end
+    assert train_vs_rejax.interquartile_mean(values) == sum(range(4, 13)) / 9
+
 def _result_file(path: Path, runs: list[dict], command: str) -> Path:
     path.write_text(json.dumps({"machine": {"date": command}, "command": command, "train": runs}))
     return path
