@@ -42,6 +42,9 @@ little about what a run of it delivers, and a mean over several says more. With
 ``final_episodes``, each side's final policy is also evaluated on that many other fresh
 episodes (``final_eval_success``): a check of 256 episodes has a standard error of about 0.013
 near 0.95 success, 2,048 episodes about 0.005, enough to tell the two final policies apart.
+Over several seeds, the summary ends with the mean of the final policies' difference and its
+standard errors (``final_difference``), then each side's median, interquartile mean and range
+(``final_spread``): one collapsed run moves a mean, not a median.
 
 Rejax's programs are compiled as it ships them (``jax.jit``), ours with
 ``jaxnav.train.COMPILER_OPTIONS`` (XLA's concurrent command-buffer scheduling, loops and
@@ -516,7 +519,7 @@ def final_spread(runs: list[dict[str, Any]]) -> str | None:
     pairs = _final_pairs(runs)
     if pairs is None:
         return None
-    sides = [sorted(side) for side in zip(*pairs, strict=True)]
+    sides = [list(side) for side in zip(*pairs, strict=True)]
 
     def each(stat: Callable[[list[float]], float]) -> str:
         return " / ".join(f"{stat(side):.3f}" for side in sides)
