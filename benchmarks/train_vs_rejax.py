@@ -43,8 +43,9 @@ little about what a run of it delivers, and a mean over several says more. With
 episodes (``final_eval_success``): a check of 256 episodes has a standard error of about 0.013
 near 0.95 success, 2,048 episodes about 0.005, enough to tell the two final policies apart.
 Over several seeds, the summary ends with the mean of the final policies' difference and its
-standard errors (``final_difference``), then each side's median, interquartile mean and range
-(``final_spread``): one collapsed run moves a mean, not a median.
+standard errors (``final_difference``), then each side's median, interquartile mean
+(``jaxnav.evaluate.iqm``) and range (``final_spread``): one collapsed run moves a mean, not a
+median.
 
 Rejax's programs are compiled as it ships them (``jax.jit``), ours with
 ``jaxnav.train.COMPILER_OPTIONS`` (XLA's concurrent command-buffer scheduling, loops and
@@ -69,7 +70,7 @@ import jax.numpy as jnp
 import optax
 
 from jaxnav.config import TrainConfig
-from jaxnav.evaluate import run_episodes, summarize
+from jaxnav.evaluate import iqm, run_episodes, summarize
 from jaxnav.train import Trainer, jit_training
 from jaxnav.wrappers import GymnaxV0
 
@@ -502,15 +503,6 @@ def final_difference(runs: list[dict[str, Any]]) -> str | None:
     )
 
 
-def interquartile_mean(values: list[float]) -> float:
-    """The mean of the middle half: ``len // 4`` values trimmed at each end (rliable's IQM,
-    ``scipy.stats.trim_mean(values, 0.25)``), robust to one run that collapses."""
-    ordered = sorted(values)
-    cut = len(ordered) // 4
-    middle = ordered[cut : len(ordered) - cut]
-    return sum(middle) / len(middle)
-
-
 def final_spread(runs: list[dict[str, Any]]) -> str | None:
     """One line for several seeds' runs of one network with final evaluations: each side's
     median, interquartile mean and range of final-policy success over the seeds, where the
@@ -527,6 +519,6 @@ def final_spread(runs: list[dict[str, Any]]) -> str | None:
     network = "-".join(map(str, runs[0]["hidden_sizes"]))
     return (
         f"Final policies of network {network} over its {len(runs)} seeds, jaxnav / rejax: "
-        f"median {each(statistics.median)}, interquartile mean {each(interquartile_mean)}, "
+        f"median {each(statistics.median)}, interquartile mean {each(iqm)}, "
         f"lowest {each(min)}, highest {each(max)}"
     )

@@ -236,13 +236,6 @@ def test_final_policies_median_interquartile_mean_and_range_over_seeds() -> None
     assert train_vs_rejax.final_spread([*runs, _full_run()]) is None
 
 
-def test_interquartile_mean_trims_a_quarter_at_each_end() -> None:
-    assert train_vs_rejax.interquartile_mean([1.0, 0.0, 0.5]) == 0.5  # 3 // 4 = 0: the mean
-    assert train_vs_rejax.interquartile_mean([0.0, 1.0, 2.0, 3.0, 100.0]) == 2.0
-    values = [float(v) for v in range(16)] + [1e6]  # 17 // 4 = 4 trimmed at each end
-    assert train_vs_rejax.interquartile_mean(values) == sum(range(4, 13)) / 9
-
-
 def _result_file(path: Path, runs: list[dict], command: str) -> Path:
     path.write_text(json.dumps({"machine": {"date": command}, "command": command, "train": runs}))
     return path

@@ -177,6 +177,9 @@ def test_path_ratio_is_none_where_not_measured():
 def test_iqm_and_bootstrap_interval():
     assert iqm([1.0, 2.0, 3.0]) == 2.0  # fewer than 4: the mean
     assert iqm([0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 100.0]) == pytest.approx(3.5)
+    assert iqm([0.0, 1.0, 2.0, 3.0, 100.0]) == 2.0  # 5 // 4 = 1 cut at each end
+    values = [float(v) for v in range(16)] + [1e6]  # 17 // 4 = 4 cut at each end
+    assert iqm(values) == pytest.approx(sum(range(4, 13)) / 9)
     values = [0.6, 0.7, 0.8, 0.9, 1.0]
     lo, hi = bootstrap_ci(values)
     assert lo <= np.mean(values) <= hi and (lo, hi) == bootstrap_ci(values)  # fixed resamples
