@@ -3,10 +3,8 @@
 from __future__ import annotations
 
 import datetime
-import importlib.metadata
 import json
 import os
-import platform
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -15,18 +13,14 @@ from typing import Any
 import jax
 
 from jaxnav.config import TrainConfig
-from jaxnav.run_dir import cpu_info
+from jaxnav.run_dir import host_info, package_version
 
 
 def machine_info() -> dict[str, Any]:
     return {
-        "platform": platform.platform(),
-        "python": platform.python_version(),
-        "cpu_count": os.cpu_count(),
-        "cpu": cpu_info(),
+        **host_info(),
         "jax_version": jax.__version__,
         "backend": jax.default_backend(),
-        "devices": [str(d) for d in jax.devices()],
         "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
         "loadavg_1m_at_start": os.getloadavg()[0] if hasattr(os, "getloadavg") else None,
         "gymnax_version": package_version("gymnax"),
@@ -49,13 +43,6 @@ def machine_text(machine: dict[str, Any]) -> str:
             details.append("no AVX-512")
     cores = f"{machine['cpu_count']} cores" + (f"; {', '.join(details)}" if details else "")
     return f"{machine['backend']} ({cores})"
-
-
-def package_version(dist: str) -> str | None:
-    try:
-        return importlib.metadata.version(dist)
-    except importlib.metadata.PackageNotFoundError:
-        return None
 
 
 def write_results(out: Path, result: dict[str, Any], markdown: str) -> None:

@@ -58,12 +58,12 @@ from benchmarks import compile_time, env_throughput, train_vs_rejax
 from benchmarks.common import (
     machine_info,
     machine_text,
-    package_version,
     train_config,
     write_results,
     write_whole,
 )
 from jaxnav.config import TrainConfig
+from jaxnav.run_dir import package_version
 from jaxnav.safe_io import check_output_file
 
 DEFAULT_OUT = Path("benchmarks/results/compare.json")

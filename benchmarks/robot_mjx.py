@@ -29,12 +29,12 @@ import numpy as np
 from benchmarks.common import (
     compile_timed,
     machine_info,
-    package_version,
     time_in_turn,
     write_results,
 )
 from jaxnav.envs.robot import mazes
 from jaxnav.envs.robot.mjx_backend import MjxRobot
+from jaxnav.run_dir import package_version
 
 DEFAULT_OUT = Path("benchmarks/results/robot_mjx.json")
 RADIUS = 0.15

@@ -15,7 +15,6 @@ import json
 import os
 import platform
 import shutil
-import sys
 import tempfile
 from importlib import metadata
 from pathlib import Path
@@ -64,21 +63,31 @@ def cpu_info(cpuinfo: str | None = None) -> dict[str, Any]:
     }
 
 
-def environment_info() -> dict[str, Any]:
-    versions = {}
-    for name in PACKAGES:
-        try:
-            versions[name] = metadata.version(name)
-        except metadata.PackageNotFoundError:
-            versions[name] = None
+def package_version(dist: str) -> str | None:
+    """The installed version of distribution ``dist``, or None where it is not installed."""
+    try:
+        return metadata.version(dist)
+    except metadata.PackageNotFoundError:
+        return None
+
+
+def host_info() -> dict[str, Any]:
+    """The machine a run or benchmark ran on: OS, Python, cores, CPU and JAX's devices."""
     return {
-        "python": sys.version.split()[0],
+        "python": platform.python_version(),
         "platform": platform.platform(),
         "cpu_count": os.cpu_count(),
         "cpu": cpu_info(),
-        "jax_backend": jax.default_backend(),
         "devices": [str(d) for d in jax.devices()],
-        "packages": versions,
+    }
+
+
+def environment_info() -> dict[str, Any]:
+    """What a run's config.json records of where it ran: ``host_info`` and the packages."""
+    return {
+        **host_info(),
+        "jax_backend": jax.default_backend(),
+        "packages": {name: package_version(name) for name in PACKAGES},
     }
 
 

@@ -259,3 +259,16 @@ def test_machine_text_names_the_cpu_and_its_vector_instructions() -> None:
     assert arm == {"model": None, "family": None, "model_number": None, "features": None}
     assert machine_text({"backend": "cpu", "cpu_count": 4, "cpu": arm}) == "cpu (4 cores)"
     assert machine_text({"backend": "gpu", "cpu_count": 16}) == "gpu (16 cores)"  # older results
+
+
+def test_benchmarks_and_runs_describe_the_host_alike() -> None:
+    """A benchmark's ``machine`` and a run's ``environment`` record the same host fields with
+    the same values, so results and runs from one machine can be matched."""
+    from benchmarks.common import machine_info
+    from jaxnav.run_dir import environment_info, host_info
+
+    host = host_info()
+    assert set(host) == {"python", "platform", "cpu_count", "cpu", "devices"}
+    for record in (machine_info(), environment_info()):
+        assert {k: record[k] for k in host} == host
+    assert machine_info()["backend"] == environment_info()["jax_backend"]
