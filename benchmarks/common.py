@@ -13,7 +13,7 @@ from typing import Any
 import jax
 
 from jaxnav.config import TrainConfig
-from jaxnav.run_dir import host_info, package_version
+from jaxnav.host import host_info, package_version
 
 
 def machine_info() -> dict[str, Any]:

@@ -63,7 +63,7 @@ from benchmarks.common import (
     write_whole,
 )
 from jaxnav.config import TrainConfig
-from jaxnav.run_dir import package_version
+from jaxnav.host import package_version
 from jaxnav.safe_io import check_output_file
 
 DEFAULT_OUT = Path("benchmarks/results/compare.json")

@@ -34,7 +34,7 @@ from benchmarks.common import (
 )
 from jaxnav.envs.robot import mazes
 from jaxnav.envs.robot.mjx_backend import MjxRobot
-from jaxnav.run_dir import package_version
+from jaxnav.host import package_version
 
 DEFAULT_OUT = Path("benchmarks/results/robot_mjx.json")
 RADIUS = 0.15

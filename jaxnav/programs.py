@@ -29,6 +29,7 @@ from typing import Any
 import jax
 import numpy as np
 
+from jaxnav.host import package_version
 from jaxnav.train import Trainer, jit_training
 
 FORMAT = 1  # bump when what is stored changes
@@ -162,15 +163,13 @@ def _jit_exported(exported: jax.export.Exported, mesh: Any, **kwargs: Any) -> An
 
 
 def _key(trainer: Trainer, keys: jax.Array) -> str:
-    from importlib import metadata
-
     config = dataclasses.asdict(trainer.config)
     parts = {
         "format": FORMAT,
         "config": config,
         "keys": [list(keys.shape), str(keys.dtype)],
         "source": _source_hash(),
-        "packages": {p: _version(metadata, p) for p in PACKAGES},
+        "packages": {p: package_version(p) for p in PACKAGES},
         "devices": [d.device_kind for d in jax.devices()],
     }
     maze_file = config["env_kwargs"].get("maze_file")
@@ -178,13 +177,6 @@ def _key(trainer: Trainer, keys: jax.Array) -> str:
         parts["maze_file"] = hashlib.sha256(Path(maze_file).read_bytes()).hexdigest()
     text = json.dumps(parts, sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:32]
-
-
-def _version(metadata: Any, package: str) -> str | None:
-    try:
-        return metadata.version(package)
-    except metadata.PackageNotFoundError:
-        return None
 
 
 def _source_hash() -> str:

@@ -247,7 +247,7 @@ def test_machine_text_names_the_cpu_and_its_vector_instructions() -> None:
     """A CPU result's head says which CPU (a run's speed differs between CPUs with and
     without AVX-512); what the system does not say is unknown, not absent."""
     from benchmarks.common import machine_text
-    from jaxnav.run_dir import cpu_info
+    from jaxnav.host import cpu_info
 
     x86 = cpu_info(CPUINFO_X86)
     features = {"avx2": True, "avx512f": False, "avx512_bf16": False, "amx_tile": False}
@@ -265,7 +265,8 @@ def test_benchmarks_and_runs_describe_the_host_alike() -> None:
     """A benchmark's ``machine`` and a run's ``environment`` record the same host fields with
     the same values, so results and runs from one machine can be matched."""
     from benchmarks.common import machine_info
-    from jaxnav.run_dir import environment_info, host_info
+    from jaxnav.host import host_info
+    from jaxnav.run_dir import environment_info
 
     host = host_info()
     assert set(host) == {"python", "platform", "cpu_count", "cpu", "devices"}

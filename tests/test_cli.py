@@ -11,7 +11,7 @@ import sys
 import pytest
 from conftest import SMALL_GRID_FLAGS  # pytest puts tests/ on sys.path
 
-from jaxnav import run_dir
+from jaxnav import host, run_dir
 from jaxnav.evaluate.__main__ import main as evaluate_main
 from jaxnav.train.__main__ import main as train_main
 
@@ -33,7 +33,7 @@ def test_train_writes_a_complete_run(tiny_run):
     assert config["config"]["env_kwargs"] == {"size": 7}
     assert config["network"]["hidden_sizes"] == [32, 32]
     assert config["environment"]["packages"]["jax"]
-    assert config["environment"]["cpu"] == run_dir.cpu_info()  # where its times were measured
+    assert config["environment"]["cpu"] == host.cpu_info()  # where its times were measured
     rows = list(csv.DictReader((tiny_run / "metrics.csv").open()))
     assert len(rows) == 2 * 4  # seeds x logging intervals
     assert {"env_steps", "mean_return", "success_rate", "loss", "epsilon"} <= set(rows[0])

@@ -16,7 +16,14 @@ PACKAGE = Path(__file__).resolve().parents[1] / "jaxnav"
 # of it (the root ``jaxnav`` holds only ``jaxnav/__init__.py``).
 LAYERS: list[list[str]] = [
     # deploy: numpy only, no JAX
-    ["jaxnav.spaces", "jaxnav.sharding", "jaxnav.safe_io", "jaxnav.deploy", "jaxnav.loggers"],
+    [
+        "jaxnav.spaces",
+        "jaxnav.sharding",
+        "jaxnav.safe_io",
+        "jaxnav.deploy",
+        "jaxnav.loggers",
+        "jaxnav.host",
+    ],
     ["jaxnav.pretrained"],
     ["jaxnav.environment", "jaxnav.checkpoints"],
     ["jaxnav.envs", "jaxnav.agents", "jaxnav.wrappers"],
