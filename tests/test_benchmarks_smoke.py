@@ -268,8 +268,8 @@ def test_benchmarks_and_runs_describe_the_host_alike() -> None:
     from jaxnav.host import host_info
     from jaxnav.run_dir import environment_info
 
-    host = host_info()
+    host, machine, environment = host_info(), machine_info(), environment_info()
     assert set(host) == {"python", "platform", "cpu_count", "cpu", "devices"}
-    for record in (machine_info(), environment_info()):
+    for record in (machine, environment):
         assert {k: record[k] for k in host} == host
-    assert machine_info()["backend"] == environment_info()["jax_backend"]
+    assert machine["backend"] == environment["jax_backend"]
