@@ -329,6 +329,22 @@ def markdown(result: dict[str, Any]) -> str:
 SAME_COMPARISON = ("threshold", "eval_episodes", "final_eval_episodes", "peer_compiler_options")
 
 
+def read_train_result(path: Path, flag: str) -> tuple[dict[str, Any], list[tuple[Any, Any]]]:
+    """The result in ``path`` with train runs and each run's (``comparison``, (network,
+    seed)); ``ValueError`` (one line, starting with ``flag`` and the path) otherwise."""
+    try:
+        result = json.loads(path.read_text())
+        runs = result["train"]
+        identities = [(comparison(run), (tuple(run["hidden_sizes"]), run["seed"])) for run in runs]
+    except FileNotFoundError:
+        raise ValueError(f"{flag} {path}: no such result file") from None
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as e:
+        raise ValueError(f"{flag} {path}: not a train result of this benchmark ({e!r})") from None
+    if not runs:
+        raise ValueError(f"{flag} {path}: holds no train runs")
+    return result, identities
+
+
 def merged(paths: list[Path], command: str) -> dict[str, Any]:
     """One result of the train runs of ``paths``, results of the same comparison, ordered by
     network and seed. ``ValueError`` (one line) naming a file that is not such a result, is of
@@ -338,20 +354,8 @@ def merged(paths: list[Path], command: str) -> dict[str, Any]:
     seen: dict[tuple[tuple[int, ...], int], Path] = {}
     first: dict[str, Any] | None = None
     for path in paths:
-        try:
-            result = json.loads(path.read_text())
-            file_runs = result["train"]
-            identities = [
-                (comparison(run), (tuple(run["hidden_sizes"]), run["seed"])) for run in file_runs
-            ]
-        except FileNotFoundError:
-            raise ValueError(f"--merge {path}: no such result file") from None
-        except (OSError, ValueError, KeyError, TypeError, AttributeError) as e:
-            raise ValueError(
-                f"--merge {path}: not a train result of this benchmark ({e!r})"
-            ) from None
-        if not file_runs:
-            raise ValueError(f"--merge {path}: holds no train runs")
+        result, identities = read_train_result(path, "--merge")
+        file_runs = result["train"]
         for identity, key in identities:
             first = identity if first is None else first
             keys = first.keys() | identity.keys()

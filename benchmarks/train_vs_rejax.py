@@ -479,10 +479,10 @@ def _final_pairs(runs: list[dict[str, Any]]) -> list[list[float]] | None:
     return pairs
 
 
-def final_difference(runs: list[dict[str, Any]]) -> str | None:
-    """One line for several seeds' runs of one network with final evaluations: the mean of
-    jaxnav's minus rejax's final-policy success, its standard error over the seeds (what
-    another set of seeds would move) and that of the episodes alone; None otherwise."""
+def final_difference_stats(runs: list[dict[str, Any]]) -> tuple[float, float, float] | None:
+    """For several seeds' runs of one network with final evaluations: the mean of jaxnav's
+    minus rejax's final-policy success, its standard error over the seeds (what another set
+    of seeds would move) and that of the episodes alone; None otherwise."""
     pairs = _final_pairs(runs)
     if pairs is None:
         return None
@@ -495,11 +495,25 @@ def final_difference(runs: list[dict[str, Any]]) -> str | None:
         math.sqrt(sum(p * (1 - p) / n for pair, n in zip(pairs, counts, strict=True) for p in pair))
         / k
     )
+    return mean, over_seeds, episodes
+
+
+def signed(value: float) -> str:
+    """A difference of successes to 3 places with its sign ("+0.000" for a rounded -0.0)."""
+    return f"{round(value, 3) + 0.0:+.3f}"
+
+
+def final_difference(runs: list[dict[str, Any]]) -> str | None:
+    """``final_difference_stats`` as one line; None where there are none."""
+    stats = final_difference_stats(runs)
+    if stats is None:
+        return None
+    mean, over_seeds, episodes = stats
     network = "-".join(map(str, runs[0]["hidden_sizes"]))
-    mean_text = f"{round(mean, 3) + 0.0:+.3f}"  # + 0.0: a rounded -0.0 prints as +0.000
     return (
-        f"Final policies, jaxnav minus rejax, network {network} over {k} seeds: {mean_text} "
-        f"(standard error over the seeds {over_seeds:.3f}; of the episodes alone {episodes:.3f})"
+        f"Final policies, jaxnav minus rejax, network {network} over {len(runs)} seeds: "
+        f"{signed(mean)} (standard error over the seeds {over_seeds:.3f}; of the episodes "
+        f"alone {episodes:.3f})"
     )
 
 

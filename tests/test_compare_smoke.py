@@ -454,3 +454,90 @@ def test_a_row_out_of_device_memory_is_left_out_and_the_run_completes(
     assert "Out of memory, left out: FourRooms-misc @ 4 envs" in out.with_suffix(".md").read_text()
     with pytest.raises(ValueError, match="a bug"):  # anything else is not swallowed
         compare.main([*argv, "--envs", "GridMaze-Random-v0", "--out", str(tmp_path / "x.json")])
+
+
+def _rated_run(seed: int, ratio: float, ours: float, theirs: float, reached: bool) -> dict:
+    """``_evaluated_run`` taking ``ratio`` times our train time on rejax's side; ours reached
+    rejax's best check or not."""
+    run = _evaluated_run(seed, ours, theirs) | {"wall_time_ratio": ratio}
+    run["sides"]["jaxnav PQN"]["time_to_peer_best_s"] = 0.5 if reached else None
+    return run
+
+
+def test_rejax_standing_gives_every_reading_of_the_goal(tmp_path: Path, capsys) -> None:
+    """One row a result: the mean ratio and the seeds below the target (a reading per seed),
+    each success measure of both sides, whether ours is below rejax's final policies by more
+    than two standard errors over the seeds, and on how many seeds ours reached rejax's best
+    check; rejax as it ships and with our options apart."""
+    from benchmarks import rejax_standing
+
+    runs = [
+        _rated_run(0, 3.2, 0.9, 0.8, True),
+        _rated_run(1, 2.997, 0.5, 0.5, False),  # below 3x, though a table rounds it to 3.00x
+        _rated_run(2, 3.1, 1.0, 0.9, False),
+    ]
+    shipped = _result_file(tmp_path / "shipped.json", runs, "c")
+    worse = [_rated_run(i, 2.5, 0.80 + i / 100, 0.90 + i / 100, False) for i in range(3)]
+    options = _result_file(
+        tmp_path / "options.json", [r | {"peer_compiler_options": True} for r in worse], "c"
+    )
+    # 0.01 below on every seed: no spread over the seeds, but within the episodes' noise
+    close = _result_file(
+        tmp_path / "close.json", [_rated_run(i, 3.0, 0.89, 0.9, False) for i in range(3)], "c"
+    )
+    out = tmp_path / "standing.json"
+    result = rejax_standing.main([str(shipped), str(options), str(close), "--out", str(out)])
+    assert json.loads(out.read_text()) == json.loads(json.dumps(result))
+    first, second, third = result["rows"]
+    assert third["final_policy"]["difference_se_over_seeds"] == 0.0
+    assert third["final_policy"]["below_by_more_than_2_se"] is False
+    assert third["seeds_below_target"] == 0  # 3.0 is not below 3x
+    assert first["rejax"] == "as it ships" and second["rejax"] == "with our options"
+    assert first["ratio_mean"] == pytest.approx(3.099) and first["ratio_lowest"] == 2.997
+    assert first["seeds_below_target"] == 1 and second["seeds_below_target"] == 3
+    assert first["success"]["final policy mean"] == pytest.approx([0.8, 2.2 / 3])
+    assert first["success"]["median"] == pytest.approx([0.9, 0.8])
+    # differences 0.1, 0, 0.1 (the standard error as in the summary's difference line)
+    assert first["final_policy"]["difference"] == pytest.approx(1 / 15)
+    assert first["final_policy"]["difference_se_over_seeds"] == pytest.approx(1 / 30)
+    assert first["final_policy"]["below_by_more_than_2_se"] is False
+    # 0.1 below on every seed: more than twice the episodes' standard error (0.028)
+    assert second["final_policy"]["difference_se_of_the_episodes"] == pytest.approx(0.028, abs=1e-3)
+    assert second["final_policy"]["below_by_more_than_2_se"] is True
+    assert first["peer_best_reached"] == 1 and second["peer_best_reached"] == 0
+    # the final checks and the last quarters are 1.0 on both sides in these runs: equal
+    assert first["ours_at_least_rejax_on"] == [
+        "final policy mean", "median", "interquartile mean", "final check", "last quarter"
+    ]  # fmt: skip
+    assert second["ours_at_least_rejax_on"] == ["final check", "last quarter"]
+    md = out.with_suffix(".md").read_text()
+    assert md.strip() in capsys.readouterr().out
+    assert (
+        "| `shipped.json` | GridMaze-v0 PQN, 16, n/a, n/a envs | as it ships | 3 | 3.10x | 3.00x "
+        "| 1 | 0.800 / 0.733 (+0.067, 0.033) | 0.900 / 0.800 |" in md
+    )
+    assert "| no | 1 of 3 |" in md and "| yes | 0 of 3 | final check, last quarter |" in md
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["missing.json"], "result missing.json: no such result file"),
+        (["other.json"], "result other.json: not a train result of this benchmark ("),
+        (["--target", "0", "other.json"], "--target 0.0: must be > 0"),
+    ],
+)
+def test_rejax_standing_refuses_in_one_line(
+    tmp_path: Path, monkeypatch, capsys, argv: list[str], message: str
+) -> None:
+    from benchmarks import rejax_standing
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "other.json").write_text('{"env": {}}')
+    with pytest.raises(SystemExit) as e:
+        rejax_standing.main([*argv, "--out", "standing.json"])
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    # a bad file: one line; a bad flag: argparse's usage, then the one line
+    assert message in err.strip().splitlines()[-1] and "Traceback" not in err
+    assert not (tmp_path / "standing.json").exists()
