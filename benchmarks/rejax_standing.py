@@ -26,19 +26,17 @@ from __future__ import annotations
 import argparse
 import statistics
 import sys
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from benchmarks.common import write_results
 from benchmarks.compare import read_train_result
-from benchmarks.train_vs_rejax import final_difference_stats, signed, success_text
+from benchmarks.train_vs_rejax import final_difference_stats, side_stats, signed, success_text
 from jaxnav.evaluate import iqm
 from jaxnav.safe_io import check_output_file
 
 DEFAULT_OUT = Path("benchmarks/results/rejax_standing.json")
 REJAX_BUILDS = {False: "as it ships", True: "with our options"}
-Stat = Callable[[list[float]], float]
 
 
 def _at_least(values: list[float] | None) -> bool:
@@ -47,25 +45,16 @@ def _at_least(values: list[float] | None) -> bool:
     return values is not None and round(values[0], 3) >= round(values[1], 3)
 
 
-def _side_stats(runs: list[dict[str, Any]], field: str, stat: Stat) -> list[float] | None:
-    """Each side's ``stat`` of ``field`` over ``runs`` (jaxnav first); None where a run did
-    not record it."""
-    sides = [[list(r["sides"].values())[i].get(field) for r in runs] for i in (0, 1)]
-    if any(v is None for side in sides for v in side):
-        return None
-    return [stat(side) for side in sides]
-
-
 def _row(path: Path, runs: list[dict[str, Any]], target: float) -> dict[str, Any]:
     """The row of one network's runs (a seed each) of the result in ``path``."""
     config = runs[0]["config"]
     ratios = [r["wall_time_ratio"] for r in runs]
     success = {
-        "final policy mean": _side_stats(runs, "final_eval_success", statistics.fmean),
-        "median": _side_stats(runs, "final_eval_success", statistics.median),
-        "interquartile mean": _side_stats(runs, "final_eval_success", iqm),
-        "final check": _side_stats(runs, "final_success", statistics.fmean),
-        "last quarter": _side_stats(runs, "late_success", statistics.fmean),
+        "final policy mean": side_stats(runs, "final_eval_success"),
+        "median": side_stats(runs, "final_eval_success", statistics.median),
+        "interquartile mean": side_stats(runs, "final_eval_success", iqm),
+        "final check": side_stats(runs, "final_success"),
+        "last quarter": side_stats(runs, "late_success"),
     }
     final = None
     if success["final policy mean"] is not None:

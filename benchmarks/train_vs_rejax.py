@@ -407,20 +407,27 @@ def final_count(results: list[dict[str, Any]]) -> str:
     return "N" if count is None else f"{count:,}"
 
 
+def side_stats(
+    runs: list[dict[str, Any]],
+    field: str,
+    stat: Callable[[list[float]], float] = statistics.fmean,
+) -> list[float] | None:
+    """Each side's ``stat`` of ``field`` over ``runs`` (jaxnav first); None where a run did
+    not record it."""
+    sides = [[list(r["sides"].values())[i].get(field) for r in runs] for i in (0, 1)]
+    if any(v is None for side in sides for v in side):
+        return None
+    return [stat(side) for side in sides]
+
+
 def mean_row(runs: list[dict[str, Any]]) -> str:
     """``summary``'s row of means over several seeds' runs of one network."""
-    sides = [[list(r["sides"].values())[i] for r in runs] for i in (0, 1)]
-
-    def means(field: str) -> list[float] | None:
-        if any(s.get(field) is None for side in sides for s in side):
-            return None
-        return [sum(s[field] for s in side) / len(side) for side in sides]
 
     def success(field: str) -> str:
-        values = means(field)
+        values = side_stats(runs, field)
         return "n/a" if values is None else " / ".join(map(success_text, values))
 
-    train_s = means("train_s")
+    train_s = side_stats(runs, "train_s")
     ratio = sum(r["wall_time_ratio"] for r in runs) / len(runs)
     after_first = [after_first_ratio(r["sides"].values()) for r in runs]
     after_first_mean = None if None in after_first else sum(after_first) / len(runs)

@@ -31,6 +31,8 @@ from jaxnav.safe_io import remove_quietly
 from jaxnav.train import Trainer
 
 PACKAGES = ("jaxnav", "jax", "jaxlib", "flax", "optax", "chex", "orbax-checkpoint", "mujoco-mjx")
+
+
 def environment_info() -> dict[str, Any]:
     """What a run's config.json records of where it ran: ``host_info`` and the packages."""
     return {
