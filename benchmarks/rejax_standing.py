@@ -31,7 +31,13 @@ from typing import Any
 
 from benchmarks.common import write_results
 from benchmarks.compare import read_train_result
-from benchmarks.train_vs_rejax import final_difference_stats, side_stats, signed, success_text
+from benchmarks.train_vs_rejax import (
+    final_difference_stats,
+    runs_by_network,
+    side_stats,
+    signed,
+    success_text,
+)
 from jaxnav.evaluate import iqm
 from jaxnav.safe_io import check_output_file
 
@@ -94,10 +100,7 @@ def _row(path: Path, runs: list[dict[str, Any]], target: float) -> dict[str, Any
 
 def standing(path: Path, result: dict[str, Any], target: float) -> list[dict[str, Any]]:
     """The rows of one result: one per network it ran."""
-    by_network: dict[tuple[int, ...], list[dict[str, Any]]] = {}
-    for run in result["train"]:
-        by_network.setdefault(tuple(run["hidden_sizes"]), []).append(run)
-    return [_row(path, runs, target) for runs in by_network.values()]
+    return [_row(path, runs, target) for runs in runs_by_network(result["train"])]
 
 
 def _yes_no(value: bool | None) -> str:

@@ -439,6 +439,14 @@ def mean_row(runs: list[dict[str, Any]]) -> str:
     )
 
 
+def runs_by_network(results: list[dict[str, Any]]) -> list[list[dict[str, Any]]]:
+    """``results``' runs grouped by network, in the order each network first appears."""
+    by_network: dict[tuple[int, ...], list[dict[str, Any]]] = {}
+    for r in results:
+        by_network.setdefault(tuple(r["hidden_sizes"]), []).append(r)
+    return list(by_network.values())
+
+
 def summary(results: list[dict[str, Any]]) -> str:
     """One row per run of ``measure`` results: train time of each side, the ratio, and the
     successes; then, for a network run with several seeds, a row of their means."""
@@ -466,13 +474,9 @@ def summary(results: list[dict[str, Any]]) -> str:
             f"| {r['peer_best_success']:.3f} | {seconds_each(r, 'time_to_peer_best_s')} "
             f"| {'jaxnav did not reach it' if ratio is None else f'{ratio:.2f}x'} |"
         )
-    by_network: dict[tuple[int, ...], list[dict[str, Any]]] = {}
-    for r in results:
-        by_network.setdefault(tuple(r["hidden_sizes"]), []).append(r)
-    lines += [mean_row(runs) for runs in by_network.values() if len(runs) > 1]
-    notes = [
-        note(runs) for runs in by_network.values() for note in (final_difference, final_spread)
-    ]
+    networks = runs_by_network(results)
+    lines += [mean_row(runs) for runs in networks if len(runs) > 1]
+    notes = [note(runs) for runs in networks for note in (final_difference, final_spread)]
     return "\n".join(lines + [f"\n{note}" for note in notes if note])
 
 
