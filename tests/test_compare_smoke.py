@@ -467,8 +467,9 @@ def _rated_run(seed: int, ratio: float, ours: float, theirs: float, reached: boo
 def test_rejax_standing_gives_every_reading_of_the_goal(tmp_path: Path, capsys) -> None:
     """One row a result: the mean ratio and the seeds below the target (a reading per seed),
     each success measure of both sides, whether ours is below rejax's final policies by more
-    than two standard errors over the seeds, and on how many seeds ours reached rejax's best
-    check; rejax as it ships and with our options apart."""
+    than twice the larger of the difference's standard errors (over the seeds, of the
+    episodes), and on how many seeds ours reached rejax's best check; rejax as it ships and
+    with our options apart."""
     from benchmarks import rejax_standing
 
     runs = [
