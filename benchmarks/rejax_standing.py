@@ -33,10 +33,10 @@ from benchmarks.common import write_results
 from benchmarks.compare import read_train_result
 from benchmarks.train_vs_rejax import (
     final_difference_stats,
+    pair_text,
     runs_by_network,
     side_stats,
     signed,
-    success_text,
 )
 from jaxnav.evaluate import iqm
 from jaxnav.safe_io import check_output_file
@@ -107,10 +107,6 @@ def _yes_no(value: bool | None) -> str:
     return "n/a" if value is None else ("yes" if value else "no")
 
 
-def _pair(values: list[float] | None) -> str:
-    return "n/a" if values is None else " / ".join(success_text(v) for v in values)
-
-
 def markdown(rows: list[dict[str, Any]], target: float) -> str:
     lines = [
         f"| result | setup | rejax | seeds | rejax / ours, mean | lowest seed "
@@ -122,7 +118,7 @@ def markdown(rows: list[dict[str, Any]], target: float) -> str:
     ]
     for r in rows:
         final, success = r["final_policy"], r["success"]
-        mean = _pair(success["final policy mean"])
+        mean = pair_text(success["final policy mean"])
         if final is not None:
             se = final["difference_se_over_seeds"]
             mean += f" ({signed(final['difference'])}, {'n/a' if se is None else f'{se:.3f}'})"
@@ -135,8 +131,8 @@ def markdown(rows: list[dict[str, Any]], target: float) -> str:
         lines.append(
             f"| `{r['result']}` | {setup} | {r['rejax']} | {n} | {r['ratio_mean']:.2f}x "
             f"| {r['ratio_lowest']:.2f}x | {r['seeds_below_target']} | {mean} "
-            f"| {_pair(success['median'])} | {_pair(success['interquartile mean'])} "
-            f"| {_pair(success['final check'])} | {_pair(success['last quarter'])} "
+            f"| {pair_text(success['median'])} | {pair_text(success['interquartile mean'])} "
+            f"| {pair_text(success['final check'])} | {pair_text(success['last quarter'])} "
             f"| {_yes_no(final and final['below_by_more_than_2_se'])} "
             f"| {r['peer_best_reached']} of {n} "
             f"| {', '.join(r['ours_at_least_rejax_on']) or 'none'} |"

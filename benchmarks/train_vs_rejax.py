@@ -420,12 +420,16 @@ def side_stats(
     return [stat(side) for side in sides]
 
 
+def pair_text(values: list[float] | None) -> str:
+    """Each side's success, jaxnav / rejax, as the tables show it; "n/a" where not recorded."""
+    return "n/a" if values is None else " / ".join(map(success_text, values))
+
+
 def mean_row(runs: list[dict[str, Any]]) -> str:
     """``summary``'s row of means over several seeds' runs of one network."""
 
     def success(field: str) -> str:
-        values = side_stats(runs, field)
-        return "n/a" if values is None else " / ".join(map(success_text, values))
+        return pair_text(side_stats(runs, field))
 
     train_s = side_stats(runs, "train_s")
     ratio = sum(r["wall_time_ratio"] for r in runs) / len(runs)
@@ -533,13 +537,11 @@ def final_spread(runs: list[dict[str, Any]]) -> str | None:
     median, interquartile mean and range of final-policy success over the seeds, where the
     mean alone hides whether one side is ahead on most seeds or behind on one; None
     otherwise."""
-    pairs = _final_pairs(runs)
-    if pairs is None:
+    if _final_pairs(runs) is None:
         return None
-    sides = [list(side) for side in zip(*pairs, strict=True)]
 
     def each(stat: Callable[[list[float]], float]) -> str:
-        return " / ".join(f"{stat(side):.3f}" for side in sides)
+        return pair_text(side_stats(runs, "final_eval_success", stat))
 
     network = "-".join(map(str, runs[0]["hidden_sizes"]))
     return (
