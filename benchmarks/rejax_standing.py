@@ -7,7 +7,8 @@ Each ``RESULT`` is a ``benchmarks.compare --sections train`` result (one process
 merged by ``--merge``). One row per result and network, computed from its runs, one a seed:
 
 - speed: rejax / ours in train time, the mean over the seeds (as the comparison's summary
-  gives it), the lowest seed's, and how many seeds fall below ``--target``;
+  gives it) with its standard error over the seeds and whether the mean is above ``--target``
+  by more than twice it, the lowest seed's, and how many seeds fall below ``--target``;
 - success of each side's final policy on the final evaluation's fresh episodes: the mean over
   the seeds with jaxnav's minus rejax's difference and its standard error over the seeds, the
   median and the interquartile mean; the final checks' and the last quarter's means; and on
@@ -77,6 +78,8 @@ def _row(path: Path, runs: list[dict[str, Any]], target: float) -> dict[str, Any
             "difference_se_of_the_episodes": episodes,
             "below_by_more_than_2_se": below,
         }
+    # None for one seed: no spread
+    ratio_se = statistics.stdev(ratios) / len(ratios) ** 0.5 if len(ratios) > 1 else None
     return {
         "result": path.name,
         "env": config["env"],
@@ -87,6 +90,10 @@ def _row(path: Path, runs: list[dict[str, Any]], target: float) -> dict[str, Any
         "rejax": REJAX_BUILDS[bool(runs[0].get("peer_compiler_options"))],
         "seeds": [r["seed"] for r in runs],
         "ratio_mean": statistics.fmean(ratios),
+        "ratio_se_over_seeds": ratio_se,
+        "ratio_mean_above_target_by_more_than_2_se": (
+            None if ratio_se is None else statistics.fmean(ratios) - 2 * ratio_se > target
+        ),
         "ratio_lowest": min(ratios),
         "seeds_below_target": sum(r < target for r in ratios),
         "final_policy": final,
@@ -109,12 +116,13 @@ def _yes_no(value: bool | None) -> str:
 
 def markdown(rows: list[dict[str, Any]], target: float) -> str:
     lines = [
-        f"| result | setup | rejax | seeds | rejax / ours, mean | lowest seed "
-        f"| seeds below {target:g}x | final policy, mean, jaxnav / rejax (difference, s.e. over "
-        f"the seeds) | median | interquartile mean | final check | last quarter "
+        f"| result | setup | rejax | seeds | rejax / ours, mean (s.e. over the seeds) "
+        f"| mean above {target:g}x by more than 2 s.e. | lowest seed | seeds below {target:g}x "
+        f"| final policy, mean, jaxnav / rejax (difference, s.e. over the seeds) | median "
+        f"| interquartile mean | final check | last quarter "
         f"| final policy mean below rejax's by more than 2 s.e. (the larger of the two) "
         f"| rejax's best check reached by ours | ours at least rejax's on |",
-        "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|",
+        "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|",
     ]
     for r in rows:
         final, success = r["final_policy"], r["success"]
@@ -127,9 +135,11 @@ def markdown(rows: list[dict[str, Any]], target: float) -> str:
             f"{r['compute_dtype'] or 'n/a'}, "
             f"{'n/a' if r['num_envs'] is None else format(r['num_envs'], ',')} envs"
         )
-        n = len(r["seeds"])
+        n, ratio_se = len(r["seeds"]), r["ratio_se_over_seeds"]
         lines.append(
             f"| `{r['result']}` | {setup} | {r['rejax']} | {n} | {r['ratio_mean']:.2f}x "
+            f"({'n/a' if ratio_se is None else f'{ratio_se:.3f}'}) "
+            f"| {_yes_no(r['ratio_mean_above_target_by_more_than_2_se'])} "
             f"| {r['ratio_lowest']:.2f}x | {r['seeds_below_target']} | {mean} "
             f"| {pair_text(success['median'])} | {pair_text(success['interquartile mean'])} "
             f"| {pair_text(success['final check'])} | {pair_text(success['last quarter'])} "

@@ -465,7 +465,8 @@ def _rated_run(seed: int, ratio: float, ours: float, theirs: float, reached: boo
 
 
 def test_rejax_standing_gives_every_reading_of_the_goal(tmp_path: Path, capsys) -> None:
-    """One row a result: the mean ratio and the seeds below the target (a reading per seed),
+    """One row a result: the mean ratio with its standard error over the seeds and whether the
+    mean clears the target by twice it, the seeds below the target (a reading per seed),
     each success measure of both sides, whether ours is below rejax's final policies by more
     than twice the larger of the difference's standard errors (over the seeds, of the
     episodes), and on how many seeds ours reached rejax's best check; rejax as it ships and
@@ -496,6 +497,14 @@ def test_rejax_standing_gives_every_reading_of_the_goal(tmp_path: Path, capsys) 
     assert first["rejax"] == "as it ships" and second["rejax"] == "with our options"
     assert first["ratio_mean"] == pytest.approx(3.099) and first["ratio_lowest"] == 2.997
     assert first["seeds_below_target"] == 1 and second["seeds_below_target"] == 3
+    # ratios 3.2, 2.997, 3.1: s.e. 0.0586, so the mean's 3.099 is within 2 s.e. of 3x; the
+    # close runs' 3.0 on every seed has no spread and is not above 3x
+    assert first["ratio_se_over_seeds"] == pytest.approx(0.0586, abs=1e-4)
+    assert first["ratio_mean_above_target_by_more_than_2_se"] is False
+    assert third["ratio_se_over_seeds"] == 0.0
+    assert third["ratio_mean_above_target_by_more_than_2_se"] is False
+    lower = rejax_standing.main([str(shipped), "--target", "2", "--out", str(tmp_path / "2.json")])
+    assert lower["rows"][0]["ratio_mean_above_target_by_more_than_2_se"] is True
     assert first["success"]["final policy mean"] == pytest.approx([0.8, 2.2 / 3])
     assert first["success"]["median"] == pytest.approx([0.9, 0.8])
     # differences 0.1, 0, 0.1 (the standard error as in the summary's difference line)
@@ -514,8 +523,8 @@ def test_rejax_standing_gives_every_reading_of_the_goal(tmp_path: Path, capsys) 
     md = out.with_suffix(".md").read_text()
     assert md.strip() in capsys.readouterr().out
     assert (
-        "| `shipped.json` | GridMaze-v0 PQN, 16, n/a, n/a envs | as it ships | 3 | 3.10x | 3.00x "
-        "| 1 | 0.800 / 0.733 (+0.067, 0.033) | 0.900 / 0.800 |" in md
+        "| `shipped.json` | GridMaze-v0 PQN, 16, n/a, n/a envs | as it ships | 3 | 3.10x (0.059) "
+        "| no | 3.00x | 1 | 0.800 / 0.733 (+0.067, 0.033) | 0.900 / 0.800 |" in md
     )
     assert "| no | 1 of 3 |" in md and "| yes | 0 of 3 | final check, last quarter |" in md
 
