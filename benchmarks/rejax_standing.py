@@ -38,6 +38,7 @@ from benchmarks.train_vs_rejax import (
     runs_by_network,
     side_stats,
     signed,
+    standard_error,
 )
 from jaxnav.evaluate import iqm
 from jaxnav.safe_io import check_output_file
@@ -78,8 +79,7 @@ def _row(path: Path, runs: list[dict[str, Any]], target: float) -> dict[str, Any
             "difference_se_of_the_episodes": episodes,
             "below_by_more_than_2_se": below,
         }
-    # None for one seed: no spread
-    ratio_se = statistics.stdev(ratios) / len(ratios) ** 0.5 if len(ratios) > 1 else None
+    ratio_mean, ratio_se = statistics.fmean(ratios), standard_error(ratios)  # se None: one seed
     return {
         "result": path.name,
         "env": config["env"],
@@ -89,10 +89,10 @@ def _row(path: Path, runs: list[dict[str, Any]], target: float) -> dict[str, Any
         "num_envs": config.get("num_envs"),
         "rejax": REJAX_BUILDS[bool(runs[0].get("peer_compiler_options"))],
         "seeds": [r["seed"] for r in runs],
-        "ratio_mean": statistics.fmean(ratios),
+        "ratio_mean": ratio_mean,
         "ratio_se_over_seeds": ratio_se,
         "ratio_mean_above_target_by_more_than_2_se": (
-            None if ratio_se is None else statistics.fmean(ratios) - 2 * ratio_se > target
+            None if ratio_se is None else ratio_mean - 2 * ratio_se > target
         ),
         "ratio_lowest": min(ratios),
         "seeds_below_target": sum(r < target for r in ratios),

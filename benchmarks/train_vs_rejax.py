@@ -494,6 +494,16 @@ def _final_pairs(runs: list[dict[str, Any]]) -> list[list[float]] | None:
     return pairs
 
 
+def standard_error(values: list[float]) -> float | None:
+    """The standard error of the mean of ``values`` (one a seed): what another set of seeds
+    would move it by; None for fewer than two."""
+    k = len(values)
+    if k < 2:
+        return None
+    mean = sum(values) / k
+    return math.sqrt(sum((v - mean) ** 2 for v in values) / (k - 1) / k)
+
+
 def final_difference_stats(runs: list[dict[str, Any]]) -> tuple[float, float, float] | None:
     """For several seeds' runs of one network with final evaluations: the mean of jaxnav's
     minus rejax's final-policy success, its standard error over the seeds (what another set
@@ -505,7 +515,7 @@ def final_difference_stats(runs: list[dict[str, Any]]) -> tuple[float, float, fl
     k = len(runs)
     diffs = [ours - theirs for ours, theirs in pairs]
     mean = sum(diffs) / k
-    over_seeds = math.sqrt(sum((d - mean) ** 2 for d in diffs) / (k - 1) / k)
+    over_seeds = standard_error(diffs)
     episodes = (
         math.sqrt(sum(p * (1 - p) / n for pair, n in zip(pairs, counts, strict=True) for p in pair))
         / k
