@@ -191,13 +191,12 @@ class Trainer:
     def updates_unroll(algo: str, steps: int) -> int:
         """How many of a loop's ``steps`` gradient steps one trip runs, so that XLA schedules
         across steps: on a GPU up to 16 of an epoch's PQN minibatches (RobotNav-v0's preset and
-        GridMaze-v0 at 32,768 envs train a few percent faster with 8 than rolled, README
-        "Training-loop throughput", for a few seconds more compile; all 16 of RobotNav-v0's
-        took 25.48 ms an iteration against 25.61-25.86 with 8 on one H200, at no more compile,
-        benchmarks/RESULTS.md) and 2 of the DQN's updates (3.32 -> 3.24 ms an iteration of
-        GridMaze-v0 at 4,096 envs on one H200; before its batches were sampled ahead of the
-        loop, unrolled updates ran slower); on a CPU 1, where the loop costs nothing to speak
-        of and compiles stay short."""
+        GridMaze-v0 at 32,768 envs train a few percent faster with 8 than rolled, for a few
+        seconds more compile; all 16 of RobotNav-v0's took 25.48 ms an iteration against
+        25.61-25.86 with 8 on one H200, at no more compile, benchmarks/RESULTS.md) and 2 of the
+        DQN's updates (3.32 -> 3.24 ms an iteration of GridMaze-v0 at 4,096 envs on one H200;
+        before its batches were sampled ahead of the loop, unrolled updates ran slower); on a
+        CPU 1, where the loop costs nothing to speak of and compiles stay short."""
         if jax.default_backend() != "gpu":
             return 1
         return min(steps, 16 if algo == "pqn" else 2)
@@ -288,7 +287,7 @@ class Trainer:
         schedule = partial(self.learning_rate, hp)
         opt = optax.adam(schedule) if self.config.optimizer == "adam" else optax.sgd(schedule)
         # one flat vector instead of a leaf per layer: far fewer small kernels per update, which
-        # bound PQN's many minibatch steps on a GPU (README, "Training-loop throughput")
+        # bound PQN's many minibatch steps on a GPU (benchmarks/RESULTS.md)
         chain = [optax.clip_by_global_norm(hp.max_grad_norm), opt]
         if jax.default_backend() == "gpu":
             # the flat gradient written out once: otherwise the clip's norm and Adam's moments
