@@ -71,7 +71,7 @@ def robot_frame_layout(env: robot_env.RobotNav) -> list[dict[str, Any]]:
             _entry("robot_y", 1.0 / height),
         ]
     if c.obs_proximity:
-        entries.append(_entry("goal_distance", inv_range, (0.0, 1.0)))
+        entries.append(_entry("goal_distance", 1.0 / (c.goal_range or c.laser_range), (0.0, 1.0)))
     if c.obs_heading:
         entries += [_entry("heading_sin"), _entry("heading_cos")]
     if c.obs_goal_bearing:
@@ -82,6 +82,10 @@ def robot_frame_layout(env: robot_env.RobotNav) -> list[dict[str, Any]]:
             _entry("waypoint_bearing_cos"),
             _entry("waypoint_distance", inv_range, (0.0, 1.0)),
         ]
+    if c.obs_last_action:
+        entries += [_entry(f"last_action_{name}") for name in robot_env.ACTION_NAMES]
+    if c.obs_radius:
+        entries.append(_entry("robot_radius", 1.0, (0.0, 1.0)))
     return entries
 
 
@@ -101,6 +105,11 @@ ROBOT_QUANTITIES = {
     "about waypoint_distance_m metres ahead on a shortest path, from a planner)",
     "waypoint_bearing_cos": "cos of the waypoint's direction minus the heading",
     "waypoint_distance": "straight-line distance robot to waypoint in metres",
+    **{
+        f"last_action_{name}": f"1 if the previous action was {name}, else 0 (0 after a reset)"
+        for name in robot_env.ACTION_NAMES
+    },
+    "robot_radius": "the robot's radius in metres",
 }
 
 
@@ -336,7 +345,8 @@ CARRIED_FIELDS = {
     "robot": (
         "num_lasers", "laser_fov", "laser_range", "obs_absolute", "obs_proximity",
         "obs_heading", "obs_goal_bearing", "waypoint_distance", "waypoint_moves", "frames",
-        "speed", "turn_speed", "dt", "radius", "backend",
+        "goal_range", "obs_last_action", "obs_radius", "speed", "turn_speed", "dt", "radius",
+        "backend",
     ),
     "grid": ("size", "obs_mode", "sensor_radius"),
 }  # fmt: skip

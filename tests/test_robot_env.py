@@ -527,3 +527,33 @@ def test_maze_seed_and_new_fields_are_validated():
     ]:
         with pytest.raises(ValueError, match=match):
             jaxnav.make("RobotNav-v0", **bad)
+
+
+def test_map_free_odometry_fields_read_the_goal_far_the_last_action_and_the_radius():
+    """goal_range, obs_last_action and obs_radius: what a map-free robot knows of itself."""
+    env, params = jaxnav.make(
+        "RobotSimple-v0",
+        backend="kinematic",
+        obs_absolute=False,
+        laser_range=3.5,
+        goal_range=16.0,
+        obs_last_action=True,
+        obs_radius=True,
+        radius_range=(0.1, 0.25),
+    )
+    base = 7 + 1 + 2  # lasers, distance, bearing
+    assert env.frame_size == base + 4 + 1
+    pose, goal = jnp.array([1.5, 1.5, 0.0]), jnp.array([8.5, 8.5])
+    obs, s = env.reset_to(KEY, params, pose, goal)
+    frame = np.asarray(obs[-env.frame_size :])
+    # 9.9 m away: beyond the 3.5 m lidar, yet read unclipped against the 16 m goal range
+    assert frame[7] == pytest.approx(float(jnp.linalg.norm(goal - pose[:2])) / 16.0)
+    np.testing.assert_array_equal(frame[base : base + 4], 0.0)  # no action before the first
+    assert 0.1 <= frame[-1] <= 0.25 and frame[-1] == pytest.approx(float(s.radius))
+    for action in (LEFT, FORWARD, RIGHT):
+        obs, s, *_ = env.step_env(KEY, s, action, params)
+        frame = np.asarray(obs[-env.frame_size :])
+        np.testing.assert_array_equal(frame[base : base + 4], np.eye(4)[action])
+        assert frame[-1] == pytest.approx(float(s.radius))  # the episode's radius stays
+    with pytest.raises(ValueError, match="goal_range=-1.0"):
+        jaxnav.make("RobotSimple-v0", backend="kinematic", goal_range=-1.0)

@@ -149,6 +149,13 @@ class RobotConfig:
     obs_proximity: bool = True
     obs_heading: bool = False
     obs_goal_bearing: bool = True  # (sin, cos) of the goal's direction relative to the heading
+    # metres the goal distance D is divided by (then clipped at 1); 0: ``laser_range``, so a
+    # short lidar's range no longer hides how far a distant goal is
+    goal_range: float = 0.0
+    # the action that led to this frame, one-hot (zeros after a reset): a robot's own command
+    obs_last_action: bool = False
+    # the episode's robot radius in metres (clipped at 1): one policy for several robot sizes
+    obs_radius: bool = False
     # a global planner's hint: (sin, cos) of the direction to the point about
     # ``waypoint_distance`` metres ahead on a shortest path through the maze's free cells (that
     # many metres in whole cells, at least one), and its distance / laser_range; in metres, not
@@ -240,6 +247,11 @@ class RobotConfig:
             v = getattr(self, name)
             if not _positive(v):
                 raise ValueError(f"{name}={v!r}: must be a positive number")
+        if not (self.goal_range == 0 or _positive(self.goal_range)):
+            raise ValueError(
+                f"goal_range={self.goal_range!r}: must be a positive number of metres "
+                "(0: laser_range)"
+            )
         if type(self.waypoint_moves) is not int or self.waypoint_moves not in (4, 8):
             raise ValueError(f"waypoint_moves={self.waypoint_moves!r}: must be 4 or 8")
         w = self.waypoint_distance
@@ -520,7 +532,8 @@ class RobotNav(Environment[RobotState, RobotParams]):
         absolute = 4 * c.obs_absolute  # goal (x, y), robot (x, y)
         return (
             c.num_lasers + absolute + c.obs_proximity + 2 * c.obs_heading + 2 * c.obs_goal_bearing
-            + 3 * (c.waypoint_distance > 0)
+            + 3 * (c.waypoint_distance > 0) + len(ACTION_NAMES) * c.obs_last_action
+            + c.obs_radius
         )
 
     def observation_space(self, params: RobotParams | None = None) -> spaces.Box:
@@ -570,7 +583,10 @@ class RobotNav(Environment[RobotState, RobotParams]):
         goal = jnp.asarray(goal, jnp.float32)
         layout = jnp.asarray(layout, jnp.int32)
         # keys of their own (folded in), apart from the start, goal and heading draws
-        frame = self._sense(self._frame(pose, goal, layout, params), jax.random.fold_in(key, 1))
+        robot = self._episode_robot(jax.random.fold_in(key, 2))
+        radius = robot.get("radius", self.config.radius)
+        frame = self._frame(pose, goal, layout, params, None, radius)
+        frame = self._sense(frame, jax.random.fold_in(key, 1))
         frames = jnp.broadcast_to(frame, (self.config.frames, frame.shape[0]))
         state = RobotState(
             time=jnp.zeros((), jnp.int32),
@@ -578,7 +594,7 @@ class RobotNav(Environment[RobotState, RobotParams]):
             goal=goal,
             layout=layout,
             frames=frames,
-            **self._episode_robot(jax.random.fold_in(key, 2)),
+            **robot,
         )
         return self.get_obs(state, params), state
 
@@ -614,7 +630,7 @@ class RobotNav(Environment[RobotState, RobotParams]):
         d_after = self.goal_distance(pose, state.goal, state.layout, params)
         known = (d_before >= 0) & (d_after >= 0)
         r_progress = jnp.where(known, params.progress_reward * (d_before - d_after), 0.0)
-        frame = self._frame(pose, state.goal, state.layout, params)
+        frame = self._frame(pose, state.goal, state.layout, params, action, radius)
         gap = frame[: c.num_lasers].min() * c.laser_range - radius  # free space around it
         r_clearance = params.clearance_reward * jnp.clip(1.0 - gap / params.clearance, 0.0, 1.0)
         frame = self._sense(frame, k_sense)  # the lasers as seen (the clearance read the truth)
@@ -865,7 +881,16 @@ class RobotNav(Environment[RobotState, RobotParams]):
         # (benchmarks/RESULTS.md)
         return jax.lax.optimization_barrier(ranges)
 
-    def _frame(self, pose, goal, layout, params) -> jax.Array:
+    def _frame(
+        self,
+        pose: jax.Array,
+        goal: jax.Array,
+        layout: jax.Array,
+        params: RobotParams,
+        action: jax.Array | None,
+        radius: jax.Array | float,
+    ) -> jax.Array:
+        """One frame of the observation at ``pose``; ``action`` led there (None: a reset)."""
         c = self.config
         parts = [self.lasers(pose, layout, params) / c.laser_range]
         if c.obs_absolute:
@@ -874,7 +899,7 @@ class RobotNav(Environment[RobotState, RobotParams]):
         if c.obs_proximity:
             # clipped at 1 to stay in the observation space: a no-op within a 10 m square
             # arena at the default range (its diagonal), "far" beyond the range otherwise
-            distance = jnp.linalg.norm(goal - pose[:2])[None] / c.laser_range
+            distance = jnp.linalg.norm(goal - pose[:2])[None] / (c.goal_range or c.laser_range)
             parts.append(jnp.minimum(distance, 1.0))
         if self.config.obs_heading:
             parts.append(jnp.stack([jnp.sin(pose[2]), jnp.cos(pose[2])]))
@@ -884,6 +909,11 @@ class RobotNav(Environment[RobotState, RobotParams]):
             to_waypoint = self.waypoint(pose, goal, layout, params) - pose[:2]
             parts.append(_bearing(to_waypoint, pose[2]))
             parts.append(jnp.minimum(jnp.linalg.norm(to_waypoint) / c.laser_range, 1.0)[None])
+        if c.obs_last_action:
+            n = len(ACTION_NAMES)
+            parts.append(jnp.zeros(n) if action is None else jax.nn.one_hot(action, n))
+        if c.obs_radius:
+            parts.append(jnp.minimum(jnp.asarray(radius, jnp.float32), 1.0)[None])
         # Materialize the frame: otherwise XLA fuses the ray casts into the stacking of
         # frames and recasts them for every stacked element (half of a GPU step's time)
         return jax.lax.optimization_barrier(jnp.concatenate(parts))

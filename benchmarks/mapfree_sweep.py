@@ -1,0 +1,165 @@
+"""Map-free navigation's levers, measured: PQN on a robot env with one setting changed per row,
+each trained once and tested greedily on held-out mazes (each family apart), the paper's mazes,
+the maze files and, where the env exists, JaxNav-style levels at JaxNav's robot size.
+
+    python -m benchmarks.mapfree_sweep [--rows 0,1] [--episodes 2000] \
+        [--out benchmarks/results/mapfree_sweep.jsonl]
+
+Every row is ``TrainConfig.for_env(env, algo="pqn")`` with the row's env and training
+overrides, seed 0 (``jax.random.split(key(0), 1)``), ``eval_episodes`` 0. "Map-free" means
+``waypoint_distance=0``: the observation is the lidar, the goal's distance and bearing and,
+with the row's options, the robot's previous action and radius; no waypoint, no map, no arena
+coordinates. One JSON line per row (appended to ``--out``) and a markdown table beside it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+
+import jaxnav
+from benchmarks.common import machine_info
+from jaxnav.config import TrainConfig
+from jaxnav.envs.robot import generators
+from jaxnav.evaluate import run_episodes
+from jaxnav.experiments import HELD_OUT_MAZE_SEED, Family, default_families
+from jaxnav.registration import registered_envs
+from jaxnav.train import Trainer, jit_training
+
+TEST_KEY = 1234
+MAPFREE = {"waypoint_distance": 0.0}
+# the goal's distance read to 16 m (past any arena here) and the previous action
+ODOMETRY = {**MAPFREE, "goal_range": 16.0, "obs_last_action": True}
+# JaxNav's robot and goal (radius 0.25 m, goal radius 0.3 m), on levels the policy never saw
+JAXNAV_ROBOT = {"radius": 0.25, "goal_radius": 0.3, "max_steps": 500}
+
+# (label, env id, env overrides, training overrides)
+ROWS: list[tuple[str, str, dict[str, Any], dict[str, Any]]] = [
+    ("RobotNav-v0 preset, waypoint off", "RobotNav-v0", MAPFREE, {}),
+    ("+ goal distance to 16 m, previous action", "RobotNav-v0", ODOMETRY, {}),
+    ("row 1 + 8 frames", "RobotNav-v0", {**ODOMETRY, "frames": 8}, {}),
+    ("row 1, 2x env steps", "RobotNav-v0", ODOMETRY, {"total_timesteps": 1_677_721_600}),
+]
+
+
+def families(config: TrainConfig) -> list[Family]:
+    """The run's own env on held-out mazes, the paper's mazes, every maze file and, where
+    registered, JaxNav-style levels at JaxNav's robot size (held out)."""
+    held_out = Family("held-out", "own", {"maze_seed": HELD_OUT_MAZE_SEED, "num_layouts": 1000})
+    out = [held_out, *default_families(config)[1:]]
+    if "RobotJaxNav-v0" in registered_envs():
+        levels = {"maze_seed": HELD_OUT_MAZE_SEED, "num_layouts": 1000, **JAXNAV_ROBOT}
+        out.append(Family("JaxNav levels, r 0.25", "RobotJaxNav-v0", levels))
+    return out
+
+
+def outcome(out: dict[str, Any], mask: np.ndarray | None = None) -> dict[str, float]:
+    """Success, collision and timeout rates of the episodes ``mask`` picks (all if None)."""
+    keep = slice(None) if mask is None else mask
+    return {
+        k: float(np.mean(np.asarray(out[k])[keep])) for k in ("success", "collision", "timeout")
+    }
+
+
+def run_row(index: int, episodes: int) -> dict[str, Any]:
+    label, env_id, env_kwargs, overrides = ROWS[index]
+    config = TrainConfig.for_env(
+        env_id, algo="pqn", env_kwargs=env_kwargs, eval_episodes=0, **overrides
+    )
+    trainer = Trainer(config)
+    train = jit_training(jax.vmap(trainer.train))
+    keys = jax.random.split(jax.random.key(0), 1)
+    t0 = time.perf_counter()
+    compiled = train.lower(keys).compile()
+    t1 = time.perf_counter()
+    state, metrics = jax.block_until_ready(compiled(keys))
+    state, metrics = jax.tree.map(lambda x: x[0], (state, metrics))
+    t2 = time.perf_counter()
+    steps = int(metrics["env_steps"][-1])
+    row: dict[str, Any] = {
+        "row": index,
+        "label": label,
+        "env": env_id,
+        "env_kwargs": env_kwargs,
+        "train": overrides,
+        "compile_s": round(t1 - t0, 1),
+        "train_s": round(t2 - t1, 2),
+        "env_steps": steps,
+        "env_steps_per_s": steps / (t2 - t1),
+        "diverged": int(state.diverged),
+        "episodes": episodes,
+        "tests": {},
+    }
+    policy = trainer.greedy_policy(state.params)
+    for family in families(config):
+        env_name, kwargs = family.for_run(config)
+        env, params = jaxnav.make(env_name, **kwargs)
+        out = run_episodes(
+            env, params, policy, jax.random.key(TEST_KEY), episodes, params.max_steps_in_episode
+        )
+        row["tests"][family.name] = outcome(out)
+        if family.name == "held-out":
+            names = env.config.families
+            layout = np.asarray(out["layout"]) % len(names)
+            for i, name in enumerate(names):
+                row["tests"][f"held-out {name}"] = outcome(out, layout == i)
+        print(f"  {family.name}: {row['tests'][family.name]}", flush=True)
+    return row
+
+
+def markdown(rows: list[dict[str, Any]]) -> str:
+    names = list(rows[0]["tests"])
+    head = "| row | setting | train s | env steps | " + " | ".join(names) + " |"
+    lines = [head, "|" + "---|" * (4 + len(names))]
+    for r in rows:
+        cells = [f"{t['success']:.3f} / {t['collision']:.3f}" for t in r["tests"].values()]
+        lines.append(
+            f"| {r['row']} | {r['label']} | {r['train_s']:.1f} | {r['env_steps']:,} | "
+            + " | ".join(cells)
+            + " |"
+        )
+    return "\n".join(lines) + (
+        f"\n\nCells: greedy success / collision rate over {rows[0]['episodes']} episodes each "
+        f"(test key {TEST_KEY}, mazes round-robin; held-out: maze_seed {HELD_OUT_MAZE_SEED}, "
+        f"1,000 mazes, families {', '.join(generators.FAMILIES)} in turn). One training seed "
+        "a row.\n"
+    )
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m benchmarks.mapfree_sweep")
+    p.add_argument("--rows", default=",".join(map(str, range(len(ROWS)))))
+    p.add_argument("--episodes", type=int, default=2000)
+    p.add_argument("--out", type=Path, default=Path("benchmarks/results/mapfree_sweep.jsonl"))
+    args = p.parse_args(argv)
+    try:
+        indices = [int(i) for i in args.rows.split(",")]
+        if any(not 0 <= i < len(ROWS) for i in indices):
+            raise ValueError
+    except ValueError:
+        print(f"--rows {args.rows!r}: give indices in 0..{len(ROWS) - 1}", file=sys.stderr)
+        return 2
+    machine = machine_info()
+    rows = []
+    for i in indices:
+        print(f"row {i}: {ROWS[i][0]}", flush=True)
+        row = run_row(i, args.episodes) | {"machine": machine}
+        rows.append(row)
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        with args.out.open("a") as f:
+            f.write(json.dumps(row) + "\n")
+        print(f"  trained {row['env_steps']:,} steps in {row['train_s']} s", flush=True)
+    args.out.with_suffix(".md").write_text(markdown(rows))
+    print(markdown(rows))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
