@@ -237,7 +237,7 @@ def run_row(index: int, episodes: int) -> dict[str, Any]:
     trainer = Trainer(config)
     # vmapped over a batch of one key (rows 0-19 used jit(train)): with the optimizer state of
     # a leaf per layer that ran 1.43x as fast on one H100; with today's preset the two run
-    # alike (benchmarks/results/train_vmap_h100.md)
+    # alike (train_vmap_h100 in docs/results-history.md)
     train = jit_training(jax.vmap(trainer.train))
     keys = jax.random.key(0)[None]
     if index >= SPLIT_KEY_ROWS:

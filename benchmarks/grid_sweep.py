@@ -1,7 +1,7 @@
 """Train several configs (each over several seeds, vmapped) and evaluate them greedily.
 
 Used to choose GridMaze-v0's default observation and the default hyperparameters by
-measurement. Example (the README's observation-mode table):
+measurement. Example (the observation-mode table of docs/paper.md):
 
     python -m benchmarks.grid_sweep --seeds 3 \
         --variant onehot '{"env_kwargs": {"obs_mode": "onehot"}}' \

@@ -51,7 +51,7 @@ class EnvParams:
 
 
 # On a GPU, ``step_batch``'s compaction (index gathers and scatters) costs more than the resets
-# it saves in batches below this size (measured against vmap(step): benchmarks/RESULTS.md)
+# it saves in batches below this size (measured against vmap(step): docs/results-history.md)
 ACCELERATOR_MIN_BATCH = 2**17
 
 StateT = TypeVar("StateT", bound=EnvState)

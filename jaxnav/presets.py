@@ -59,7 +59,7 @@ ROBOT_PQN: dict[str, Any] = {
     "log_interval": 204_800,
 }
 
-# PQN at a GPU's scale for RobotNav-v0, the generalist (README: "The generalist robot").
+# PQN at a GPU's scale for RobotNav-v0, the generalist (docs/evaluation.md: "The generalist robot").
 # 8192 envs x 32 steps; 16 minibatches of 16,384 x 4 epochs: 64 gradient steps per 262,144
 # transitions at lr 2e-3. With 16 steps of 16,384 envs and 8 minibatches x 2 epochs the run was
 # 6x faster but made only 6,000 gradient steps in 100M env steps and plateaued near 0.4 success;

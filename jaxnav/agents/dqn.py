@@ -306,7 +306,7 @@ def regression_loss(
 # for q_max), each row apart: on a GPU a reduction to a scalar is a kernel, and three a step
 # were 5 of the DQN's 70 kernels a gradient step; sums per row fuse into the kernels that
 # compute the rows (GridMaze-v0's PQN at 32,768 envs: 5.72 -> 5.52 ms an iteration on one H200,
-# benchmarks/RESULTS.md).
+# docs/results-history.md).
 DIAGNOSTICS = ("loss", "q_mean", "q_max")
 
 

@@ -16,7 +16,7 @@ over each block of rows forward (read ``z``, write the output and the residuals)
 backward (read the output's gradient and ``z``, write ``z``'s gradient and each instance's
 column sums of the three parameter gradients), where XLA's fusions of the same function read
 each activation several times (with flax's LayerNorm, reductions took 44% of the GPU's kernel
-time: ``benchmarks/results/archive/profile_training_h100_RobotNav-v0_flax_norm.md``). The
+time: ``profile_training_h100_RobotNav-v0_flax_norm``, docs/results-history.md). The
 kernels run where a gradient is taken; a call without one (acting, evaluation) is the jnp form.
 On a backend without Triton the kernels run in Pallas's interpreter (tests), and shapes they do
 not take (``kernel_fits``) use the jnp form. ``pallas=False``: jnp, which XLA fuses as it can.
@@ -58,16 +58,17 @@ class Blocks(NamedTuple):
 # Chosen from each kernel timed alone (``python -m benchmarks.layer_norm_blocks``), then
 # trained with:
 # - 1024 and 2048 on one H100 at 16,384 rows, the RobotNav-v0 preset's minibatch
-#   (``benchmarks/results/layer_norm_blocks_h100.md``): a few hundred instances looping over
+#   (``layer_norm_blocks_h100``, docs/results-history.md): a few hundred instances looping over
 #   small blocks, the next block's loads issued while the last one computes; the preset
 #   trained at 7.34M env steps/s with them where instances walking 2-4 blocks unrolled
-#   trained at 7.15M (``benchmarks/results/train_throughput_h100_RobotNav-v0.md`` and the
-#   archived ``*_unrolled_walk``). 2048 keeps the blocks measured before the loop.
+#   trained at 7.15M (``train_throughput_h100_RobotNav-v0`` and the
+#   archived ``*_unrolled_walk``, docs/results-history.md). 2048 keeps the blocks measured
+#   before the loop.
 # - 512, 256 and 128 on one H200 at 65,536 rows, GridMaze-v0's minibatch at 32,768 envs
-#   (``benchmarks/results/layer_norm_blocks_h200.md``): the fastest there; the grid's PQN
+#   (``layer_norm_blocks_h200``, docs/results-history.md): the fastest there; the grid's PQN
 #   iteration took 5.56 ms with them against 5.78-5.80 with the blocks chosen at 16,384 rows,
 #   and RobotNav-v0's 25.46 against 25.50 (median of 7 and 5 calls, the same machine).
-# - 64 on one H200 at 65,536 rows (``benchmarks/results/layer_norm_blocks_h200_64.md``): the
+# - 64 on one H200 at 65,536 rows (``layer_norm_blocks_h200_64``, docs/results-history.md): the
 #   grid network's last hidden layer, which took the jnp form before; its PQN iteration took
 #   5.85 ms against 6.12-6.15.
 # Backward instances add up their blocks' column sums of the parameter gradients in registers
@@ -299,7 +300,7 @@ def _backward_pallas(grad, z, dense_bias, scale, bias, mean, rstd):
 def _layer_norm_relu(kernel: bool, z, dense_bias, scale, bias):
     # Undifferentiated calls (acting, evaluation) keep no residuals: XLA fuses the jnp form with
     # the products around it, where the kernel is a launch of its own (GridMaze-v0's PQN at
-    # 32,768 envs on one H200: 1.2% less an iteration; benchmarks/RESULTS.md)
+    # 32,768 envs on one H200: 1.2% less an iteration; docs/results-history.md)
     return _forward_jnp(z, dense_bias, scale, bias)[0]
 
 

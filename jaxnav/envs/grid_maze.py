@@ -19,7 +19,7 @@ Observation modes (all encode the paper's information: robot, goal and obstacle 
   divided by ``size - 1``. Obstacle lists are padded to the bank's largest by repeating the
   first obstacle (a duplicate adds no information); a layout without obstacles shows one at
   (0, 0), the same in every observation.
-- ``onehot`` (chosen by measurement, see README): one-hot robot row, robot column, goal row
+- ``onehot`` (chosen by measurement, see docs/paper.md): one-hot robot row, robot column, goal row
   and goal column, whether each of the 4 neighbours is blocked, and the goal's offset
   (drow, dcol) in cells, as int8 (int16 above size 128). For a fixed layout the obstacle
   coordinates are constants, so the network learns them from the rewards instead of reading
@@ -46,9 +46,9 @@ free ones lead there), and with larger k the path bends around obstacles between
 and the point. ``make`` precomputes every cell's waypoint for each goal of the bank
 (``waypoint_offsets``: 2 int8 per cell and goal), so the hint is one gather per step (8-10%
 fewer env steps/s than without it at 4096-16384 envs on a 2-core CPU,
-``benchmarks/results/env_throughput_grid_waypoint.md``). The bank knows its goal cells only: for
-a goal given to ``reset_to`` that is not one of them the hint points at the goal, each axis
-clipped to k.
+``env_throughput_grid_waypoint`` in docs/results-history.md). The bank knows its goal cells
+only: for a goal given to ``reset_to`` that is not one of them the hint points at the goal,
+each axis clipped to k.
 """
 
 from __future__ import annotations

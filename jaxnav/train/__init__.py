@@ -63,18 +63,18 @@ DIVERGENCE_QUANTITIES = ("q_values", "loss", "params")
 # do not wait on each other run side by side (an env step's many small kernels, a backward
 # pass's two products per layer). The same kernels compute the same values. On one H100 it
 # shortened an iteration of RobotNav-v0's PQN preset from 36.0 to 32.4 ms, of GridMaze-v0's
-# from 1.66 to 1.41 ms, of RobotNav-v0's DQN preset from 0.27 to 0.19 ms (benchmarks/RESULTS.md).
+# from 1.66 to 1.41 ms, of RobotNav-v0's DQN preset from 0.27 to 0.19 ms (docs/results-history.md).
 # The command buffers also take loops and conditionals (WHILE, CONDITIONAL) as CUDA graph nodes,
 # so the device runs the epochs' and minibatches' trips without the host launching each one:
 # 31.0 -> 29.3 ms an iteration of RobotNav-v0's PQN preset (benchmarks.xla_options). The
 # rollout's loop and the loop of iterations stay with the host: XLA copies their stacked rows
-# by memcpys the host issues (benchmarks/RESULTS.md: one graph for all was no faster). Options
+# by memcpys the host issues (docs/results-history.md: one graph for all was no faster). Options
 # given here replace XLA's default list, which the first six entries repeat.
 # Copy insertion by region analysis: XLA proves more of a loop's carried buffers free to update
 # in place and copies fewer of them each trip; no arithmetic changes. On one H200 an iteration
 # of RobotNav-v0's PQN preset took 24.12 and 24.28 ms with it against 25.17 and 25.13, of the
 # grid's bfloat16 PQN 5.60 against 5.65, of the grid's DQN 3.12 and 3.23 against 3.25 and
-# 3.16 (benchmarks/results/xla_options_h200_copy_insertion_*.md).
+# 3.16 (xla_options_h200_copy_insertion_* in docs/results-history.md).
 # Other backends ignore XLA:GPU's options.
 COMPILER_OPTIONS = {
     "xla_gpu_command_buffer_scheduling_mode": "CONCURRENT",
@@ -184,7 +184,7 @@ class Trainer:
     def target_update_select() -> bool:
         """Whether DQN's target update is a select over the parameters, as on a GPU, where
         a cond every gradient step cost more (H100, GridMaze-v0 at 4,096 envs: 3.4 -> 3.2 s of
-        training, README); on a CPU the cond skips the parameter-sized work."""
+        training, docs/results-history.md); on a CPU the cond skips the parameter-sized work."""
         return jax.default_backend() != "cpu"
 
     @staticmethod
@@ -193,7 +193,7 @@ class Trainer:
         across steps: on a GPU up to 16 of an epoch's PQN minibatches (RobotNav-v0's preset and
         GridMaze-v0 at 32,768 envs train a few percent faster with 8 than rolled, for a few
         seconds more compile; all 16 of RobotNav-v0's took 25.48 ms an iteration against
-        25.61-25.86 with 8 on one H200, at no more compile, benchmarks/RESULTS.md) and 2 of the
+        25.61-25.86 with 8 on one H200, at no more compile, docs/results-history.md) and 2 of the
         DQN's updates (3.32 -> 3.24 ms an iteration of GridMaze-v0 at 4,096 envs on one H200;
         before its batches were sampled ahead of the loop, unrolled updates ran slower); on a
         CPU 1, where the loop costs nothing to speak of and compiles stay short."""
@@ -208,7 +208,7 @@ class Trainer:
         at no measurable cost in compile time; on a CPU the loop, whose trips cost nothing to
         speak of. The rollout's own loop stays rolled: two env steps a trip saved about 0.7
         ms of RobotNav-v0's 31 ms iteration for about 5 s more compile, a loss below billions
-        of env steps (benchmarks/RESULTS.md)."""
+        of env steps (docs/results-history.md)."""
         return jax.default_backend() == "gpu"
 
     @property
@@ -287,7 +287,7 @@ class Trainer:
         schedule = partial(self.learning_rate, hp)
         opt = optax.adam(schedule) if self.config.optimizer == "adam" else optax.sgd(schedule)
         # one flat vector instead of a leaf per layer: far fewer small kernels per update, which
-        # bound PQN's many minibatch steps on a GPU (benchmarks/RESULTS.md)
+        # bound PQN's many minibatch steps on a GPU (docs/results-history.md)
         chain = [optax.clip_by_global_norm(hp.max_grad_norm), opt]
         if jax.default_backend() == "gpu":
             # the flat gradient written out once: otherwise the clip's norm and Adam's moments
@@ -657,7 +657,7 @@ class Trainer:
                 # one seed is compiled without the seed axis: XLA's CPU backend reduces
                 # LayerNorm's gradients over the middle axis of [1, batch, width] slowly (PQN
                 # trained 1.26x slower that way); on a GPU the two programs run alike
-                # (benchmarks/results/train_vmap_*)
+                # (train_vmap_* in docs/results-history.md)
                 ts, metrics = self.run(jax.tree.map(lambda x: x[0], ts), log, 1)
                 return jax.tree.map(lambda x: x[None], (ts, metrics))
             return jax.vmap(lambda ts: self.run(ts, log, 1), spmd_axis_name=SEEDS)(ts)

@@ -635,7 +635,8 @@ class RobotNav(Environment[RobotState, RobotParams]):
         r_clearance = params.clearance_reward * jnp.clip(1.0 - gap / params.clearance, 0.0, 1.0)
         frame = self._sense(frame, k_sense)  # the lasers as seen (the clearance read the truth)
         # drop the oldest frame, append the new one, on the flat vector: the same values in
-        # a faster GPU kernel than a shift of the [frames, per_frame] array (RESULTS.md)
+        # a faster GPU kernel than a shift of the [frames, per_frame] array
+        # (docs/results-history.md)
         flat = jnp.concatenate([state.frames.reshape(-1)[frame.shape[0] :], frame])
         frames = flat.reshape(state.frames.shape)
         state = state.replace(pose=pose, frames=frames, time=state.time + 1)
@@ -787,7 +788,7 @@ class RobotNav(Environment[RobotState, RobotParams]):
     ) -> tuple[jax.Array, jax.Array]:
         """The layout's wall boxes (centres, half sizes) for a collision test without a mask:
         inactive slots are moved 1e15 m away, beyond any disc (unmasked, the test is a little
-        faster on a GPU and no slower on a CPU: benchmarks/RESULTS.md)."""
+        faster on a GPU and no slower on a CPU: docs/results-history.md)."""
         w = params.bank.walls
         # on the whole bank, so the select is not redone per env (XLA folds it when the bank
         # is a constant of the program, as in the trainer and the benchmarks)
@@ -853,7 +854,7 @@ class RobotNav(Environment[RobotState, RobotParams]):
         for _ in range(self.waypoint_steps):  # a few static steps
             # to the lowest neighbour below the cell, the first of equals: a chain of selects,
             # not an argmin, so that XLA fuses the moves into fewer GPU kernels (on a CPU too
-            # the generalist's step is faster: benchmarks/RESULTS.md)
+            # the generalist's step is faster: docs/results-history.md)
             lowest, step_row, step_col = known[row, col], 0, 0
             for d_row, d_col in moves:
                 value = padded[row + 1 + d_row, col + 1 + d_col]
@@ -878,7 +879,7 @@ class RobotNav(Environment[RobotState, RobotParams]):
         lo, hi = geometry.box_bounds(w.center, w.half_size, w.active)
         ranges = geometry.lasers(pose, lo[layout], hi[layout], self.angles, self.config.laser_range)
         # materialized: fused into the frame's concatenation, the casts ran slower on a GPU
-        # (benchmarks/RESULTS.md)
+        # (docs/results-history.md)
         return jax.lax.optimization_barrier(ranges)
 
     def _frame(

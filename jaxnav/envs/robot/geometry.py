@@ -121,7 +121,7 @@ def ray_box_distances(
     t_far = jnp.maximum(t1, t2)
     # x and y by hand, not jnp.max(axis=-1): reductions over 2 made XLA cut the step into
     # kernels passing [R, W, 2] arrays through memory (with circle_box_penetration's same
-    # change, faster on CPU and GPU: benchmarks/RESULTS.md, History)
+    # change, faster on CPU and GPU: docs/results-history.md)
     enter = jnp.maximum(t_near[..., 0], t_near[..., 1])  # [W, R]
     leave = jnp.minimum(t_far[..., 0], t_far[..., 1])
     dist = jnp.where((enter <= leave) & (leave >= 0.0), jnp.maximum(enter, 0.0), _FAR)
