@@ -179,8 +179,8 @@ def markdown(result: dict[str, Any]) -> str:
     for name, (success, cvar10) in PUBLISHED.items():
         lines.append(f"| {name} (published) | {success:.3f} | {cvar10:.2f} | n/a | n/a | n/a |")
     lines.append(
-        "\nPublished: Rutherford et al. 2024, \"No Regrets: Investigating and Improving Regret "
-        "Approximations for Curriculum Discovery\" (SFL), single-robot JaxNav, and its "
+        '\nPublished: Rutherford et al. 2024, "No Regrets: Investigating and Improving Regret '
+        'Approximations for Curriculum Discovery" (SFL), single-robot JaxNav, and its '
         "repository's evaluation data. Their robot is a 0.5 m square with continuous "
         "commands up to 1 m/s and 0.6 rad/s and a 200-beam lidar; ours a disc "
         f"({result['radius']} m) with 4 discrete actions (RobotJaxNav-v0's docstring, "
@@ -212,7 +212,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         p = None if seed_params is None else jax.tree.map(lambda x, s=s: x[s], seed_params)
         outcomes = [
             evaluate_levels(
-                env, params, make_policy, p, k, args.levels, args.episodes_per_level,
+                env,
+                params,
+                make_policy,
+                p,
+                k,
+                args.levels,
+                args.episodes_per_level,
                 args.chunk_levels,
             )  # fmt: skip
             for k in (key_a, key_b)

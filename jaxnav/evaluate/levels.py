@@ -110,7 +110,7 @@ def run_level_episodes(
     layouts = jnp.tile(levels, episodes_per_level)
     repeats = jnp.repeat(jnp.arange(episodes_per_level, dtype=jnp.int32), levels.shape[0])
     k_reset, k_play = jax.random.split(key)
-    keys = jax.vmap(lambda l, r: jax.random.fold_in(jax.random.fold_in(k_reset, l), r))(
+    keys = jax.vmap(lambda level, r: jax.random.fold_in(jax.random.fold_in(k_reset, level), r))(
         layouts, repeats
     )
     obs, state = jax.vmap(env.reset_layout, in_axes=(0, None, 0))(keys, params, layouts)
