@@ -31,7 +31,7 @@ import argparse
 import dataclasses
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -129,10 +129,23 @@ def policies(args: argparse.Namespace, env_kwargs: dict[str, Any]) -> tuple[Any,
     return trainer.env, trainer.env_params, trainer.greedy_policy, seed_params
 
 
+def chunk_program(
+    env: Any, params: Any, make_policy: Any, episodes_per_level: int
+) -> Callable[[Any, jax.Array, np.ndarray], dict[str, jax.Array]]:
+    """``(policy params, key, levels) -> outcomes``: ``run_level_episodes`` compiled once for
+    every seed, key and chunk of one size."""
+    max_steps = int(params.max_steps_in_episode)
+
+    @jax.jit
+    def one_chunk(p: Any, key: jax.Array, levels: jax.Array) -> dict[str, jax.Array]:
+        policy: Policy = make_policy(p)
+        return run_level_episodes(env, params, policy, key, levels, episodes_per_level, max_steps)
+
+    return one_chunk
+
+
 def evaluate_levels(
-    env: Any,
-    params: Any,
-    make_policy: Any,
+    program: Callable[[Any, jax.Array, np.ndarray], dict[str, jax.Array]],
     policy_params: Any,
     key: jax.Array,
     num_levels: int,
@@ -140,22 +153,15 @@ def evaluate_levels(
     chunk_levels: int,
 ) -> dict[str, np.ndarray]:
     """Per-episode outcomes of every level ``0 .. num_levels - 1`` of the env's bank, played
-    ``chunk_levels`` at a time (``run_level_episodes``; the last chunk padded with level 0,
-    whose padding episodes are dropped)."""
+    ``chunk_levels`` at a time by ``program`` (``chunk_program``; the last chunk padded with
+    level 0, whose padding episodes are dropped)."""
     chunk = min(chunk_levels, num_levels)
-    max_steps = int(params.max_steps_in_episode)
-
-    @jax.jit
-    def one_chunk(p: Any, levels: jax.Array) -> dict[str, jax.Array]:
-        policy: Policy = make_policy(p)
-        return run_level_episodes(env, params, policy, key, levels, episodes_per_level, max_steps)
-
     parts: list[dict[str, np.ndarray]] = []
     for start in range(0, num_levels, chunk):
         valid = min(chunk, num_levels - start)
         levels = np.zeros(chunk, np.int32)
         levels[:valid] = np.arange(start, start + valid)
-        out = jax.device_get(one_chunk(policy_params, levels))
+        out = jax.device_get(program(policy_params, key, levels))
         keep = np.arange(chunk * episodes_per_level) % chunk < valid
         parts.append({k: np.asarray(v)[keep] for k, v in out.items()})
     return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
@@ -206,21 +212,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         return fail(prog, str(e))
     seeds = 1 if seed_params is None else jax.tree.leaves(seed_params)[0].shape[0]
     key_a, key_b = (jax.random.fold_in(jax.random.key(args.seed), i) for i in (0, 1))
+    program = chunk_program(env, params, make_policy, args.episodes_per_level)
     rows: list[dict[str, Any]] = []
     t0 = time.perf_counter()
     for s in range(seeds):
         p = None if seed_params is None else jax.tree.map(lambda x, s=s: x[s], seed_params)
         outcomes = [
-            evaluate_levels(
-                env,
-                params,
-                make_policy,
-                p,
-                k,
-                args.levels,
-                args.episodes_per_level,
-                args.chunk_levels,
-            )  # fmt: skip
+            evaluate_levels(program, p, k, args.levels, args.episodes_per_level, args.chunk_levels)
             for k in (key_a, key_b)
         ]
         row = sfl_summary(*outcomes, args.levels, CVAR_ALPHAS)
