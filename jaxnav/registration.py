@@ -1,4 +1,21 @@
-"""Environment ids and ``make``."""
+"""Environment ids and ``make``.
+
+``RobotJaxNav-v0`` (``ROBOT_JAXNAV``) is JaxMARL's JaxNav single-robot benchmark as SFL
+(Rutherford et al. 2024) trains and evaluates on it, in our robot env: its levels
+(``envs/robot/jaxnav_levels.py``, a training bank of 4,096 levels of ``maze_seed`` 0), its
+protocol (``goal_radius`` 0.3 m, ``max_steps`` 500, ``dt`` 0.1 s) and robot size, on the
+kinematic backend with the generalist's map-free sensors (``robot.GENERALIST`` less the
+waypoint: 32 lasers all around read to 3.5 m, the goal's distance and bearing; 4 frames, 140
+inputs). JaxNav's robot is a 0.5 m square (corners 0.354 m from its centre; SFL's collision
+radius setting is 0.3 m); ours is a disc, and a disc of radius 0.25 m is the square's inscribed
+circle: it passes where the square's corners would touch, the square's own footprint at any
+heading. Speeds: JaxNav's robot moves at up to 1.0 m/s and turns at up to 0.6 rad/s in SFL's
+configuration (1.0 rad/s JaxNav's default), with acceleration limits and continuous or 15
+discrete (v, omega) commands; ours keeps the generalist's 1.5 m/s and 2 rad/s and its 4
+actions (forward, backward, turn left, turn right), since JaxNav's robot is no faster. Its
+lidar is 200 beams to 6 m; its reward is its own (ours is the generalist's). ``num_wall_slots``
+28: the most a level needed over 60,000 levels of seed 0 was 24 (10,000 of seed 1,000,003: 24).
+"""
 
 from __future__ import annotations
 
@@ -9,6 +26,23 @@ from typing import Any
 from jaxnav.environment import Environment, EnvParams
 from jaxnav.envs import grid_maze
 from jaxnav.envs.robot import env as robot
+
+# RobotJaxNav-v0: JaxNav's levels and protocol with the generalist's map-free sensors (the
+# module docstring says how its robot compares with JaxNav's)
+ROBOT_JAXNAV: dict[str, Any] = {
+    **robot.GENERALIST,
+    "maze": "jaxnav",
+    "maze_seed": 0,
+    "num_layouts": 4096,
+    "num_goal_cells": 0,  # every cell: a 9 x 9 level's full table is 13 KB
+    "num_wall_slots": 28,
+    "waypoint_distance": 0.0,  # map-free, as JaxNav's robot
+    "radius": 0.25,
+    "goal_radius": 0.3,
+    "max_steps": 500,
+    "dt": 0.1,
+    "backend": "kinematic",
+}
 
 # id -> (environment class, its default_config(), overrides that define the id)
 _REGISTRY: dict[str, tuple[Callable[..., Environment], Callable[[], Any], dict[str, Any]]] = {
@@ -24,6 +58,7 @@ _REGISTRY: dict[str, tuple[Callable[..., Environment], Callable[[], Any], dict[s
     "RobotRandom-v0": (robot.RobotNav, robot.default_config, {"maze": "random"}),
     "RobotMaze-v0": (robot.RobotNav, robot.default_config, {"maze": "file"}),
     "RobotNav-v0": (robot.RobotNav, robot.default_config, robot.GENERALIST),
+    "RobotJaxNav-v0": (robot.RobotNav, robot.default_config, ROBOT_JAXNAV),
 }
 
 

@@ -53,6 +53,11 @@ still offers 32 goals x every start. ``GENERALIST_SENSORS`` gives the observatio
 run its policy on a maze file (``RobotMaze-v0``, ``maze_file=...``, with ``num_wall_slots`` the
 maze needs).
 
+JaxNav's levels (``RobotJaxNav-v0``, ``maze="jaxnav"``): the single-robot benchmark of
+JaxMARL's JaxNav as SFL evaluates it, 9 x 9 interiors of 1 m cells with up to 47 random
+obstacles (``jaxnav_levels.py``), with the generalist's sensors less the waypoint (map-free);
+the id's settings and how its robot compares with JaxNav's are in ``registration.py``.
+
 Backends: ``mjx`` (the default) steps the robot with MuJoCo MJX (``mjx_backend.py``: a sphere
 on slide/slide/hinge joints with velocity actuators, per-env walls in the model's geom fields),
 ``mjx_substeps`` (2) physics steps per control step. It sees contacts at substep boundaries, so
@@ -90,10 +95,10 @@ from flax import struct
 from jaxnav import spaces
 from jaxnav.environment import Environment, EnvParams, EnvState, is_concrete
 from jaxnav.envs.maze_algorithms import FLOAT32_MAX, check_fields, first_blocked_cell
-from jaxnav.envs.robot import generators, geometry, mazes
+from jaxnav.envs.robot import generators, geometry, jaxnav_levels, mazes
 
 ACTION_NAMES = ("forward", "backward", "turn_left", "turn_right")
-MAZES = ("simple", "complex", "random", "file", "families")
+MAZES = ("simple", "complex", "random", "file", "families", "jaxnav")
 BACKENDS = ("kinematic", "mjx")
 LASER_SCALE = 10.0 * math.sqrt(2.0)  # Table I: sensors normalized by their maximum variation
 MAX_BANK_CELLS = 4_000_000  # random mazes are generated in Python: about 25 s at this size
@@ -124,9 +129,9 @@ class RobotConfig:
 
     maze: str = "simple"
     maze_file: str | None = None
-    num_layouts: int = 256  # bank size when maze == "random" or "families"
+    num_layouts: int = 256  # bank size when maze == "random", "families" or "jaxnav"
     random_size: int = 10  # cells per side of random mazes (1 m cells)
-    maze_seed: int = 0  # the random and families banks' seed (maze i depends on (seed, i))
+    maze_seed: int = 0  # the random, families and jaxnav banks' seed (maze i depends on (seed, i))
     families: tuple[str, ...] = generators.FAMILIES  # which families, in turn, for "families"
     # goal cells per maze kept in the geodesic progress table; 0 = every cell (the paper envs).
     # The full table is 2 (rows * cols)^2 bytes a maze: 320 KB at the families' 20 x 20
@@ -293,8 +298,10 @@ class RobotConfig:
                 f"maze cells to generate ({self.num_layouts * self.random_size**2:,}; at most "
                 f"{MAX_BANK_CELLS:,})"
             )
-        if self.maze in ("random", "families"):
-            side = self.random_size if self.maze == "random" else generators.ROWS
+        if self.maze in ("random", "families", "jaxnav"):
+            side = {"random": self.random_size, "jaxnav": jaxnav_levels.INTERIOR}.get(
+                self.maze, generators.ROWS
+            )
             goals = self.num_goal_cells or None
             table = mazes.goal_table_bytes(self.num_layouts, side, side, goals)
             if table > MAX_GOAL_TABLE_BYTES:
@@ -371,6 +378,8 @@ class RobotConfig:
             return generators.family_maze_bank(
                 num, self.maze_seed, self.families, num_slots=self.num_wall_slots
             )
+        if self.maze == "jaxnav":
+            return jaxnav_levels.jaxnav_level_bank(num, self.maze_seed, self.num_wall_slots)
         return [mazes.builtin_maze(self.maze)]
 
     @property
