@@ -17,8 +17,9 @@ joined by a path and no episode is played in a pocket; levels with pockets have 
 wall cells than drawn (``drawn_obstacles`` gives the draw itself, uniform as above).
 
 One redraw rule: a draw that leaves fewer than 2 free cells after the pockets are filled is
-drawn again from the same stream (it needs 80 of 81 cells cut off, far rarer than one level in
-10^9 here; no fill count is ever reached by it).
+drawn again from the same stream. That needs every free cell cut off from the others (34 or
+more free cells, no two side by side), a chance of 1.8e-17 a level (the independent sets of
+the 9 x 9 grid counted by size), so the fill counts stay uniform.
 
 Determinism: level ``i`` of seed ``s`` depends only on ``(s, i)`` (its stream is
 ``default_rng([_TAG, s, i])``), so a larger bank extends a smaller one, and another seed draws
