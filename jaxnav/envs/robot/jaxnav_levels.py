@@ -9,8 +9,9 @@ uniformly at random without replacement among the 81 interior cells. Here a leve
 outside the grid) are the border ring, so the free space is the same 9 m x 9 m.
 
 Start and goal: JaxNav's grid sampler draws the start among the free interior cells and the
-goal among the other free cells (of the start's 4-connected region when its path check is on),
-so a start in a walled-off pocket gets a goal in that pocket. Here the pockets are filled
+goal among the other free cells (of the start's 4-connected region when its path check is on,
+which SFL's training configuration leaves off), so a start in a walled-off pocket gets a goal in
+that pocket or, without the check, possibly none it can reach. Here the pockets are filled
 (``fill_pockets``: free cells outside the largest 4-connected region become walls) and resets
 draw start and goal among the remaining free cells (the env's placement rule), so every pair is
 joined by a path and no episode is played in a pocket; levels with pockets have that many more
