@@ -102,7 +102,10 @@ GRID_RANDOM_PQN: dict[str, Any] = {
     "log_interval": 128_000,  # 250 iterations of 512 env steps: 1.92M is 15 of them
 }
 
-_ROBOT_IDS = ("RobotSimple-v0", "RobotComplex-v0", "RobotRandom-v0", "RobotMaze-v0", "RobotNav-v0")
+_ROBOT_IDS = (
+    "RobotSimple-v0", "RobotComplex-v0", "RobotRandom-v0", "RobotMaze-v0", "RobotNav-v0",
+    "RobotJaxNav-v0",
+)  # fmt: skip
 _GRID_IDS = ("GridMaze-v0", "GridMaze-Random-v0")
 # algo -> env id -> preset
 PRESETS: dict[str, dict[str, dict[str, Any]]] = {
@@ -112,6 +115,7 @@ PRESETS: dict[str, dict[str, dict[str, Any]]] = {
         "GridMaze-Random-v0": GRID_RANDOM_PQN,
         **dict.fromkeys(_ROBOT_IDS, ROBOT_PQN),
         "RobotNav-v0": GENERALIST_PQN,
+        "RobotJaxNav-v0": GENERALIST_PQN,  # the generalist's sensors, on JaxNav's levels
     },
 }
 

@@ -9,16 +9,18 @@ uniformly at random without replacement among the 81 interior cells. Here a leve
 outside the grid) are the border ring, so the free space is the same 9 m x 9 m.
 
 Start and goal: JaxNav's grid sampler draws the start among the free interior cells and the
-goal among the other free cells (of the start's 4-connected region when its path check is on),
-so a start in a walled-off pocket gets a goal in that pocket. Here the pockets are filled
+goal among the other free cells (of the start's 4-connected region when its path check is on,
+which SFL's training configuration leaves off), so a start in a walled-off pocket gets a goal in
+that pocket or, without the check, possibly none it can reach. Here the pockets are filled
 (``fill_pockets``: free cells outside the largest 4-connected region become walls) and resets
 draw start and goal among the remaining free cells (the env's placement rule), so every pair is
 joined by a path and no episode is played in a pocket; levels with pockets have that many more
 wall cells than drawn (``drawn_obstacles`` gives the draw itself, uniform as above).
 
 One redraw rule: a draw that leaves fewer than 2 free cells after the pockets are filled is
-drawn again from the same stream (it needs 80 of 81 cells cut off, far rarer than one level in
-10^9 here; no fill count is ever reached by it).
+drawn again from the same stream. That needs every free cell cut off from the others (34 or
+more free cells, no two side by side), a chance of 1.8e-17 a level (the independent sets of
+the 9 x 9 grid counted by size), so the fill counts stay uniform.
 
 Determinism: level ``i`` of seed ``s`` depends only on ``(s, i)`` (its stream is
 ``default_rng([_TAG, s, i])``), so a larger bank extends a smaller one, and another seed draws
