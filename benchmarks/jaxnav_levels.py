@@ -52,7 +52,7 @@ DEFAULT_OUT = Path("benchmarks/results/jaxnav_levels.json")
 # the env settings that shape a policy's observation, carried from the run's env
 SENSOR_FIELDS = (
     "frames", "num_lasers", "laser_fov", "laser_range", "obs_absolute", "obs_proximity",
-    "obs_heading", "obs_goal_bearing",
+    "obs_heading", "obs_goal_bearing", "goal_range", "obs_last_action", "obs_radius",
 )  # fmt: skip
 # SFL's single-robot JaxNav results on its 10,000 held-out levels (the paper, Rutherford et al.
 # 2024, "No Regrets: Investigating and Improving Regret Approximations for Curriculum
@@ -204,6 +204,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             "maze_seed": args.maze_seed,
             "num_layouts": args.levels,
             "radius": args.radius,
+            "radius_range": None,  # the one robot size asked for, whatever the run drew
         }
         t0 = time.perf_counter()
         env, params, make_policy, seed_params = policies(args, env_kwargs)

@@ -30,15 +30,19 @@ from jaxnav.config import TrainConfig
 from jaxnav.envs.robot import generators
 from jaxnav.evaluate import run_episodes
 from jaxnav.experiments import HELD_OUT_MAZE_SEED, Family, default_families
+from jaxnav.presets import GENERALIST_PQN
 from jaxnav.registration import registered_envs
 from jaxnav.train import Trainer, jit_training
 
 TEST_KEY = 1234
+NAV = {k: v for k, v in GENERALIST_PQN.items() if k != "algo"}  # for ids without that preset
 MAPFREE = {"waypoint_distance": 0.0}
 # the goal's distance read to 16 m (past any arena here) and the previous action
 ODOMETRY = {**MAPFREE, "goal_range": 16.0, "obs_last_action": True}
 # JaxNav's robot and goal (radius 0.25 m, goal radius 0.3 m), on levels the policy never saw
-JAXNAV_ROBOT = {"radius": 0.25, "goal_radius": 0.3, "max_steps": 500}
+JAXNAV_ROBOT = {"radius": 0.25, "radius_range": None, "goal_radius": 0.3, "max_steps": 500}
+# the robot's size drawn per episode, and given to the policy
+SIZES = {"radius_range": (0.1, 0.25), "obs_radius": True}
 
 # (label, env id, env overrides, training overrides)
 ROWS: list[tuple[str, str, dict[str, Any], dict[str, Any]]] = [
@@ -46,6 +50,7 @@ ROWS: list[tuple[str, str, dict[str, Any], dict[str, Any]]] = [
     ("+ goal distance to 16 m, previous action", "RobotNav-v0", ODOMETRY, {}),
     ("row 1 + 8 frames", "RobotNav-v0", {**ODOMETRY, "frames": 8}, {}),
     ("row 1, 2x env steps", "RobotNav-v0", ODOMETRY, {"total_timesteps": 1_677_721_600}),
+    ("row 1 on JaxNav levels, radius 0.1-0.25 m", "RobotJaxNav-v0", {**ODOMETRY, **SIZES}, NAV),
 ]
 
 
@@ -53,10 +58,15 @@ def families(config: TrainConfig) -> list[Family]:
     """The run's own env on held-out mazes, the paper's mazes, every maze file and, where
     registered, JaxNav-style levels at JaxNav's robot size (held out)."""
     held_out = Family("held-out", "own", {"maze_seed": HELD_OUT_MAZE_SEED, "num_layouts": 1000})
-    out = [held_out, *default_families(config)[1:]]
+    # the paper's robot (0.15 m) on the paper's mazes and the files, whatever the run drew
+    fixed = {"radius": 0.15, "radius_range": None}
+    others = [Family(f.name, f.env, {**f.env_kwargs, **fixed}) for f in default_families(config)]
+    out = [held_out, *others[1:]]
     if "RobotJaxNav-v0" in registered_envs():
         levels = {"maze_seed": HELD_OUT_MAZE_SEED, "num_layouts": 1000, **JAXNAV_ROBOT}
-        out.append(Family("JaxNav levels, r 0.25", "RobotJaxNav-v0", levels))
+        for radius in (0.1, 0.15, 0.2, 0.25):
+            name = f"JaxNav levels, r {radius:g}"
+            out.append(Family(name, "RobotJaxNav-v0", {**levels, "radius": radius}))
     return out
 
 
@@ -105,7 +115,7 @@ def run_row(index: int, episodes: int) -> dict[str, Any]:
             env, params, policy, jax.random.key(TEST_KEY), episodes, params.max_steps_in_episode
         )
         row["tests"][family.name] = outcome(out)
-        if family.name == "held-out":
+        if family.name == "held-out" and env.config.maze == "families":
             names = env.config.families
             layout = np.asarray(out["layout"]) % len(names)
             for i, name in enumerate(names):
@@ -115,11 +125,15 @@ def run_row(index: int, episodes: int) -> dict[str, Any]:
 
 
 def markdown(rows: list[dict[str, Any]]) -> str:
-    names = list(rows[0]["tests"])
+    names = list(dict.fromkeys(name for r in rows for name in r["tests"]))
     head = "| row | setting | train s | env steps | " + " | ".join(names) + " |"
     lines = [head, "|" + "---|" * (4 + len(names))]
-    for r in rows:
-        cells = [f"{t['success']:.3f} / {t['collision']:.3f}" for t in r["tests"].values()]
+    for r in sorted(rows, key=lambda r: r["row"]):
+        tests = r["tests"]
+        cells = [
+            f"{tests[n]['success']:.3f} / {tests[n]['collision']:.3f}" if n in tests else "n/a"
+            for n in names
+        ]
         lines.append(
             f"| {r['row']} | {r['label']} | {r['train_s']:.1f} | {r['env_steps']:,} | "
             + " | ".join(cells)
@@ -138,7 +152,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--rows", default=",".join(map(str, range(len(ROWS)))))
     p.add_argument("--episodes", type=int, default=2000)
     p.add_argument("--out", type=Path, default=Path("benchmarks/results/mapfree_sweep.jsonl"))
+    p.add_argument("--render", action="store_true", help="only rebuild the table from --out")
     args = p.parse_args(argv)
+    if args.render:
+        rows = [json.loads(line) for line in args.out.read_text().splitlines() if line]
+        args.out.with_suffix(".md").write_text(markdown(rows))
+        return 0
     try:
         indices = [int(i) for i in args.rows.split(",")]
         if any(not 0 <= i < len(ROWS) for i in indices):

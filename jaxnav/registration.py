@@ -4,9 +4,10 @@
 (Rutherford et al. 2024) trains and evaluates on it, in our robot env: its levels
 (``envs/robot/jaxnav_levels.py``, a training bank of 4,096 levels of ``maze_seed`` 0), its
 protocol (``goal_radius`` 0.3 m, ``max_steps`` 500, ``dt`` 0.1 s) and robot size, on the
-kinematic backend with the generalist's map-free sensors (``robot.GENERALIST`` less the
-waypoint: 32 lasers all around read to 3.5 m, the goal's distance and bearing; 4 frames, 140
-inputs). JaxNav's robot is a 0.5 m square (corners 0.354 m from its centre; SFL's collision
+kinematic backend with the map-free sensors (``robot.MAPFREE_SENSORS``: 32 lasers all
+around read to 3.5 m, the goal's distance read to 16 m and its bearing, the previous action,
+the robot's radius; 8 frames, 320 inputs). ``radius_range`` (e.g. 0.1-0.25) trains one policy
+for robots of any size in it. JaxNav's robot is a 0.5 m square (corners 0.354 m from its centre; SFL's collision
 radius setting is 0.3 m); ours is a disc, and a disc of radius 0.25 m is the square's inscribed
 circle: it passes where the square's corners would touch, the square's own footprint at any
 heading. Speeds: JaxNav's robot moves at up to 1.0 m/s and turns at up to 0.6 rad/s in SFL's
@@ -36,7 +37,7 @@ ROBOT_JAXNAV: dict[str, Any] = {
     "num_layouts": 4096,
     "num_goal_cells": 0,  # every cell: a 9 x 9 level's full table is 13 KB
     "num_wall_slots": 28,
-    "waypoint_distance": 0.0,  # map-free, as JaxNav's robot
+    **robot.MAPFREE_SENSORS,  # map-free, as JaxNav's robot
     "radius": 0.25,
     "goal_radius": 0.3,
     "max_steps": 500,

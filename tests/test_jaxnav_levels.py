@@ -106,7 +106,8 @@ def test_the_env_id_has_jaxnavs_protocol(jaxnav_env):
     assert (c.maze, c.radius, c.goal_radius, c.max_steps, c.dt) == ("jaxnav", 0.25, 0.3, 500, 0.1)
     assert c.backend == "kinematic" and c.waypoint_distance == 0.0 and c.num_goal_cells == 0
     assert env.num_layouts(params) == LEVELS
-    assert env.observation_space(params).shape == (140,)  # 4 frames of 32 lasers, D, bearing
+    # 8 frames of 32 lasers, D, bearing, the previous action and the radius
+    assert env.observation_space(params).shape == (320,)
 
 
 def cell_of(xy: np.ndarray) -> np.ndarray:
@@ -146,7 +147,7 @@ def test_a_robot_at_any_free_cell_centre_touches_no_wall(jaxnav_env):
     obs, _, reward, *_, info = spawn_and_turn(
         jnp.asarray(pose), jnp.asarray(goal), jnp.asarray(layout)
     )
-    assert obs.shape == (len(layout), 140) and np.isfinite(np.asarray(reward)).all()
+    assert obs.shape == (len(layout), 320) and np.isfinite(np.asarray(reward)).all()
     assert not np.asarray(info["collision"]).any()
 
 

@@ -55,8 +55,10 @@ maze needs).
 
 JaxNav's levels (``RobotJaxNav-v0``, ``maze="jaxnav"``): the single-robot benchmark of
 JaxMARL's JaxNav as SFL evaluates it, 9 x 9 interiors of 1 m cells with up to 47 random
-obstacles (``jaxnav_levels.py``), with the generalist's sensors less the waypoint (map-free);
-the id's settings and how its robot compares with JaxNav's are in ``registration.py``.
+obstacles (``jaxnav_levels.py``), with the map-free sensors (``MAPFREE_SENSORS``: the
+generalist's lidar, the goal's distance and bearing, the previous action, the robot's radius, 8
+frames; no waypoint); the id's settings and how its robot compares with JaxNav's are in
+``registration.py``.
 
 Backends: ``mjx`` (the default) steps the robot with MuJoCo MJX (``mjx_backend.py``: a sphere
 on slide/slide/hinge joints with velocity actuators, per-env walls in the model's geom fields),
@@ -439,6 +441,17 @@ GENERALIST_SENSORS: dict[str, Any] = {
         "num_lasers", "laser_fov", "laser_range", "obs_absolute", "waypoint_distance",
         "waypoint_moves",
     )  # fmt: skip
+}
+# The map-free observation (RobotJaxNav-v0's): the generalist's lidar, the goal's distance
+# (read to 16 m) and bearing, the previous action, the robot's radius, 8 frames; no waypoint.
+# Each field's effect: benchmarks/results/mapfree_sweep.md and docs/mapfree.md
+MAPFREE_SENSORS: dict[str, Any] = {
+    **{k: GENERALIST[k] for k in ("num_lasers", "laser_fov", "laser_range", "obs_absolute")},
+    "waypoint_distance": 0.0,
+    "goal_range": 16.0,
+    "obs_last_action": True,
+    "obs_radius": True,
+    "frames": 8,
 }
 
 
