@@ -4,18 +4,19 @@
 (Rutherford et al. 2024) trains and evaluates on it, in our robot env: its levels
 (``envs/robot/jaxnav_levels.py``, a training bank of 4,096 levels of ``maze_seed`` 0), its
 protocol (``goal_radius`` 0.3 m, ``max_steps`` 500, ``dt`` 0.1 s) and robot size, on the
-kinematic backend with the map-free sensors (``robot.MAPFREE_SENSORS``: 32 lasers all
-around read to 3.5 m, the goal's distance read to 16 m and its bearing, the previous action,
-the robot's radius; 8 frames, 320 inputs). ``radius_range`` (e.g. 0.1-0.25) trains one policy
-for robots of any size in it. JaxNav's robot is a 0.5 m square (corners 0.354 m from its centre; SFL's collision
-radius setting is 0.3 m); ours is a disc, and a disc of radius 0.25 m is the square's inscribed
-circle: it passes where the square's corners would touch, the square's own footprint at any
-heading. Speeds: JaxNav's robot moves at up to 1.0 m/s and turns at up to 0.6 rad/s in SFL's
-configuration (1.0 rad/s JaxNav's default), with acceleration limits and continuous or 15
-discrete (v, omega) commands; ours keeps the generalist's 1.5 m/s and 2 rad/s and its 4
-actions (forward, backward, turn left, turn right), since JaxNav's robot is no faster. Its
-lidar is 200 beams to 6 m; its reward is its own (ours is the generalist's). ``num_wall_slots``
-28: the most a level needed over 60,000 levels of seed 0 was 24 (10,000 of seed 1,000,003: 24).
+kinematic backend with the map-free sensors (``robot.MAPFREE_SENSORS``: 32 lasers all around
+read to 3.5 m, the goal's distance read to 16 m and its bearing, the previous action, the
+robot's radius; 8 frames, 320 inputs). ``radius_range`` (e.g. 0.1-0.25) trains one policy for
+robots of any size in it. JaxNav's robot is a 0.5 m square (corners 0.354 m from its centre;
+SFL's collision radius setting is 0.3 m); ours is a disc, and a disc of radius 0.25 m is the
+square's inscribed circle: it passes where the square's corners would touch, the square's own
+footprint at any heading. Speeds: JaxNav's robot moves at up to 1.0 m/s and turns at up to 0.6
+rad/s in SFL's configuration (1.0 rad/s JaxNav's default), with acceleration limits and
+continuous or 15 discrete (v, omega) commands; ours keeps the generalist's 1.5 m/s and 2 rad/s
+and its 4 actions (forward, backward, turn left, turn right), since JaxNav's robot is no
+faster. Its lidar is 200 beams to 6 m; its reward is its own (ours is the generalist's).
+``num_wall_slots`` 28: the most a level needed over 60,000 levels of seed 0 was 24 (10,000 of
+seed 1,000,003: 24).
 """
 
 from __future__ import annotations
