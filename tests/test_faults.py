@@ -295,6 +295,34 @@ def test_flipped_byte_in_the_newest_checkpoint_falls_back_to_the_previous_one(
     assert_complete(out, reference)  # bitwise the uninterrupted run's metrics
 
 
+def test_a_run_of_rounded_step_counts_resumes_with_the_flags_it_was_started_with(
+    tmp_path, capsys, monkeypatch, reference
+):
+    """Started with step counts that are not whole intervals, the run records the steps it
+    trains; its own command line resumes it to the run of those steps, bit for bit."""
+    out = tmp_path / "run"
+    asked = ["--total-timesteps", "100", "--checkpoint-every", "40"]
+    flags = [*TINY, *asked, "--out", str(out)]  # the later flags win: 100 steps, every 40
+    save = checkpoints.Checkpoints.save
+
+    def then_killed(self, logs_done, *args, **kwargs):
+        save(self, logs_done, *args, **kwargs)
+        if logs_done == 2:
+            raise Killed
+
+    monkeypatch.setattr(checkpoints.Checkpoints, "save", then_killed)
+    with pytest.raises(Killed):
+        train_main(flags)
+    monkeypatch.setattr(checkpoints.Checkpoints, "save", save)
+    doc = json.loads((run_dir.partial_dir(out) / "config.json").read_text())
+    assert doc["config"]["total_timesteps"] == 128
+    assert doc["checkpointing"]["checkpoint_every"] == 32
+    capsys.readouterr()
+    assert train_main(["--resume", str(out), *asked]) == 0
+    assert "resumed from the checkpoint at env step 64" in capsys.readouterr().out
+    assert_complete(out, reference)  # the uninterrupted run of 128 steps
+
+
 def test_no_intact_checkpoint_is_refused_in_one_line(tmp_path, capsys, monkeypatch):
     out = tmp_path / "run"
     interrupted_after(out, monkeypatch, 3)
