@@ -323,7 +323,7 @@ def test_a_robot_policy_runs_on_a_maze_file_with_its_own_sensors(tmp_path):
     assert on_maze.env.name == "RobotMaze-v0" and on_maze.obs_size == trainer.obs_size
     assert jax.tree.leaves(stacked)[0].shape[0] == 1  # one seed
     # an override that changes the observation is refused in one line
-    with pytest.raises(ValueError, match="do not fit the run's network"):
+    with pytest.raises(ValueError, match="--env-arg num_lasers=8: .* with num_lasers=32;"):
         export.to_trainer(policy, env_id, {"maze_file": maze, "num_lasers": 8})
 
 

@@ -44,6 +44,41 @@ def robot_run(tmp_path_factory):
     return out
 
 
+@pytest.fixture(scope="module")
+def generalist_run(tmp_path_factory):
+    """A tiny RobotNav-v0 run (32 lasers all around, no absolute positions, a waypoint)."""
+    root = tmp_path_factory.mktemp("generalist")
+    (root / "maze.txt").write_text(OTHER_MAZE)
+    out = root / "run"
+    flags = [*ROBOT, "--env", "RobotNav-v0", "--env-arg", "num_layouts=2", "--out", str(out)]
+    assert train_main(flags) == 0
+    return out
+
+
+def test_a_run_takes_its_sensors_to_another_maze(generalist_run, monkeypatch, capsys):
+    maze = generalist_run.parent / "maze.txt"
+    out = generalist_run.parent / "on-maze.json"
+    argv = [str(generalist_run), "--maze-file", str(maze), "--episodes", "2"]
+    assert evaluate_main([*argv, "--out", str(out)]) == 0
+    kwargs = json.loads(out.read_text())["env_kwargs"]
+    assert kwargs["maze_file"] == str(maze) and kwargs["num_lasers"] == 32
+    assert kwargs["laser_fov"] == 360.0 and kwargs["obs_absolute"] is False
+    drawn = []
+    monkeypatch.setattr(
+        render, "trajectories_figure", lambda eps, title: drawn.append(eps) or _Figure()
+    )
+    png = generalist_run.parent / "t.png"
+    assert render.main([*argv[:3], "--episodes", "1", "--out", str(png)]) == 0
+    assert [float(v) for v in drawn[0][0]["arena"]] == [8.0, 5.0]  # the maze file's
+    # a sensor the user changes explicitly is refused, naming it
+    capsys.readouterr()
+    for command in (evaluate_main, render.main):
+        assert command([*argv[:3], "--env-arg", "num_lasers=8", "--out", str(png)]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "--env-arg num_lasers=8" in err
+        assert "num_lasers=32" in err
+
+
 @pytest.mark.slow
 def test_render_draws_the_maze_file_it_is_given(robot_run, monkeypatch, tmp_path):
     drawn = []
