@@ -1,14 +1,15 @@
 """A robot's sensor readings as an exported policy's observation, with numpy alone (no JAX).
 
 ``ScanObservation(policy.metadata)`` turns what a robot publishes, a 2D lidar scan (ROS
-``sensor_msgs/LaserScan``'s ``ranges``, ``angle_min``, ``angle_increment``, ``range_min``,
-``range_max``), its pose ``(x, y, yaw)`` (from odometry or a localizer; ``yaw_from_quaternion``
-converts a ROS orientation) and a goal ``(x, y)``, into the observation the policy was trained
-on, frames stacked as the simulator stacks them::
+``sensor_msgs/LaserScan``'s ``angle_min``, ``angle_increment``, ``range_min``, ``range_max``,
+``ranges``: ``LaserScan.from_msg(msg)``), its pose ``(x, y, yaw)`` (from odometry or a
+localizer; ``yaw_from_quaternion`` converts a ROS orientation) and a goal ``(x, y)``, into the
+observation the policy was trained on, frames stacked as the simulator stacks them::
 
     observe = ScanObservation(policy.metadata)
     observe.reset()                                  # at the start of every episode
-    action = policy.act(observe(scan, pose, goal))   # every control period (metadata's dt)
+    scan = LaserScan.from_msg(msg)                   # every control period (metadata's dt)
+    action = policy.act(observe(scan, pose, goal))
 
 Conventions, the simulator's (``jaxnav.envs.robot``): metres and radians, x forward, y left,
 angles counter-clockwise from +x (ROS REP 103). The policy's beams (metadata ``sensors``
@@ -44,16 +45,30 @@ from typing import Any
 import numpy as np
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class LaserScan:
     """One 2D lidar sweep, as ROS ``sensor_msgs/LaserScan`` has it: reading i is at angle
-    ``angle_min + i * angle_increment`` (radians; a negative increment sweeps clockwise)."""
+    ``angle_min + i * angle_increment`` (radians; a negative increment sweeps clockwise).
+    Keywords only, the fields named and ordered as ROS's (two ranges passed the other way
+    round would read every obstacle as free space); ``LaserScan.from_msg(msg)`` copies a
+    message's."""
 
-    ranges: Sequence[float] | np.ndarray
     angle_min: float
     angle_increment: float
-    range_max: float
     range_min: float = 0.0
+    range_max: float
+    ranges: Sequence[float] | np.ndarray
+
+    @classmethod
+    def from_msg(cls, msg: Any) -> LaserScan:
+        """The scan of a ROS ``sensor_msgs/LaserScan`` message (or anything with its fields)."""
+        return cls(
+            angle_min=msg.angle_min,
+            angle_increment=msg.angle_increment,
+            range_min=msg.range_min,
+            range_max=msg.range_max,
+            ranges=msg.ranges,
+        )
 
 
 def yaw_from_quaternion(x: float, y: float, z: float, w: float) -> float:
