@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 import types
 
 import jax
@@ -154,6 +155,41 @@ def test_a_scan_is_built_by_ros_field_names_only():
     scan = LaserScan.from_msg(msg)
     assert (scan.range_min, scan.range_max) == (0.1, 8.0)
     np.testing.assert_array_equal(resample_scan(scan, [0.0, math.pi]), [0.3, 0.3])
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "named"),
+    [
+        ("range_max", math.nan, "range_max=nan: must be above range_min=0.1"),
+        ("range_min", 9.0, "range_max=8.0: must be above range_min=9.0"),
+        ("range_min", -1.0, "range_min=-1.0: must be non-negative"),
+        ("range_min", math.nan, "range_min=nan: must be finite"),
+        ("angle_increment", 1e20, "angle_increment=1e+20: must be nonzero and at most 2*pi"),
+        ("angle_increment", 0.0, "angle_increment=0.0"),
+        ("angle_min", math.inf, "angle_min=inf: must be finite"),
+        ("ranges", [], "ranges: the scan has no readings"),
+    ],
+)
+def test_a_scan_that_would_read_walls_as_free_space_is_refused(field, value, named):
+    """Each of these read an obstacle 0.3 m away as free space, or garbage, before."""
+    scan = {"angle_min": 0.0, "angle_increment": math.pi / 4, "range_min": 0.1, "range_max": 8.0}
+    scan = {**scan, "ranges": [0.3] * 8, field: value}
+    with pytest.raises(ValueError, match=re.escape(named)) as e:
+        resample_scan(LaserScan(**scan), [0.0])
+    assert "\n" not in str(e.value)
+
+
+@pytest.mark.parametrize("bad", ["pose", "goal", "waypoint"])
+@pytest.mark.parametrize("value", [math.nan, math.inf])
+def test_a_non_finite_pose_goal_or_waypoint_gives_no_observation(robot, bad, value):
+    _, _, meta = robot
+    scan = LaserScan(
+        angle_min=-math.pi, angle_increment=math.pi / 360, range_max=12.0, ranges=[2.0] * 720
+    )
+    where = {"pose": [1.0, 1.0, 0.0], "goal": [3.0, 2.0], "waypoint": [2.0, 1.5]}
+    where[bad][1] = value
+    with pytest.raises(ValueError, match=rf"{bad}=\(.*{value}.*\): must be finite"):
+        ScanObservation(meta)(scan, **where)
 
 
 def test_beams_take_the_nearest_reading_and_mounting_turns_the_scan():

@@ -71,6 +71,44 @@ class LaserScan:
         )
 
 
+def check_finite(
+    name: str, values: Sequence[float] | float, size: int | None = None
+) -> tuple[float, ...]:
+    """``values`` as floats; ``ValueError`` (one line, naming ``name`` and the values) unless
+    they are ``size`` finite numbers: no action is ever computed from a NaN or an infinite
+    input."""
+    try:
+        floats = tuple(float(v) for v in np.asarray(values, np.float64).ravel())
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}={values!r}: must be numbers") from None
+    if size is not None and len(floats) != size:
+        raise ValueError(f"{name}={floats!r}: must be {size} numbers")
+    if not all(math.isfinite(v) for v in floats):
+        shown = floats[0] if np.ndim(values) == 0 else floats
+        raise ValueError(f"{name}={shown!r}: must be finite")
+    return floats
+
+
+def check_scan(scan: LaserScan) -> None:
+    """``ValueError`` (one line, naming the field and its value) for a scan whose angles or
+    range limits make no sense, each of which would read walls as free space or worse:
+    angles must be finite, the increment nonzero and at most a full turn, ``range_min`` finite
+    and non-negative, ``range_max`` above it (+inf allowed: every finite reading counts)."""
+    check_finite("angle_min", scan.angle_min, 1)
+    (increment,) = check_finite("angle_increment", scan.angle_increment, 1)
+    if increment == 0 or abs(increment) > 2 * math.pi:
+        raise ValueError(f"angle_increment={increment!r}: must be nonzero and at most 2*pi in size")
+    (low,) = check_finite("range_min", scan.range_min, 1)
+    if low < 0:
+        raise ValueError(f"range_min={low!r}: must be non-negative")
+    try:
+        high = float(scan.range_max)
+    except (TypeError, ValueError):
+        raise ValueError(f"range_max={scan.range_max!r}: must be a number") from None
+    if not high > low:  # NaN too
+        raise ValueError(f"range_max={high!r}: must be above range_min={low!r}")
+
+
 def yaw_from_quaternion(x: float, y: float, z: float, w: float) -> float:
     """The yaw (rotation about z, radians) of an orientation quaternion, as ROS odometry
     (``nav_msgs/Odometry``'s ``pose.pose.orientation``) gives it."""
@@ -100,11 +138,17 @@ def resample_scan(
     from ``scan`` (see the module docstring for readings, mounting and windows); ``inf``
     where nothing is within the scan's range. ``ValueError`` for a beam outside the scan's
     field of view unless ``fill_uncovered`` gives its range."""
-    ranges = np.asarray(scan.ranges, np.float64).ravel()
+    check_scan(scan)
+    check_finite("mount_yaw", mount_yaw)
+    check_finite("beam_width", beam_width)
+    if fill_uncovered is not None and not float(fill_uncovered) >= 0:
+        raise ValueError(f"fill_uncovered={fill_uncovered!r}: must be a range >= 0 (or inf)")
+    try:
+        ranges = np.asarray(scan.ranges, np.float64).ravel()
+    except (TypeError, ValueError):
+        raise ValueError("ranges: must be numbers") from None
     if ranges.size == 0:
-        raise ValueError("scan has no readings")
-    if not math.isfinite(scan.angle_increment) or scan.angle_increment == 0:
-        raise ValueError(f"angle_increment={scan.angle_increment!r}: must be finite and nonzero")
+        raise ValueError("ranges: the scan has no readings")
     reading = np.where(np.isneginf(ranges), 0.0, ranges)  # REP 117: -inf is "too close"
     valid = np.isfinite(reading) & (reading >= scan.range_min) & (reading <= scan.range_max)
     reading = np.where(np.isneginf(ranges) | valid, reading, np.inf)
@@ -177,8 +221,8 @@ class ScanObservation:
         waypoint: Sequence[float] | None = None,
     ) -> np.ndarray:
         """One frame ``float32[frame_size]`` (no stacking)."""
-        x, y, yaw = (float(v) for v in pose)
-        gx, gy = (float(v) for v in goal)
+        x, y, yaw = check_finite("pose", pose, 3)
+        gx, gy = check_finite("goal", goal, 2)
         if self.needs_waypoint and waypoint is None:
             raise ValueError(
                 "this policy reads a waypoint (waypoint_distance_m): pass waypoint=(x, y), "
@@ -198,7 +242,7 @@ class ScanObservation:
         }
         raw["goal_bearing_sin"], raw["goal_bearing_cos"] = bearing(gx - x, gy - y, yaw)
         if waypoint is not None:
-            wx, wy = (float(v) for v in waypoint)
+            wx, wy = check_finite("waypoint", waypoint, 2)
             raw["waypoint_bearing_sin"], raw["waypoint_bearing_cos"] = bearing(wx - x, wy - y, yaw)
             raw["waypoint_distance"] = math.hypot(wx - x, wy - y)
         values = np.empty(len(self.frame_entries), np.float64)
