@@ -38,6 +38,7 @@ from jaxnav.config import TrainConfig
 from jaxnav.deploy.policy import FORMAT, FORMAT_VERSION, Policy
 from jaxnav.envs import grid_maze
 from jaxnav.envs.robot import env as robot_env
+from jaxnav.safe_io import check_output_file
 
 FORMATS = ("npz", "onnx")
 ONNX_OPSET = 17  # LayerNormalization's first opset
@@ -545,10 +546,7 @@ def check_out(out: Path, fmt: str) -> None:
         raise ValueError(f"--format {fmt}: must be one of {', '.join(FORMATS)}")
     if out.suffix != f".{fmt}":
         raise ValueError(f"--out {out}: must end in .{fmt} for --format {fmt}")
-    if not out.parent.is_dir():
-        raise ValueError(f"--out {out}: directory {out.parent} does not exist")
-    if out.is_dir():
-        raise ValueError(f"--out {out}: is a directory")
+    check_output_file(out)  # a link, a directory or a device is refused, not replaced
     if fmt == "onnx":
         try:
             import onnx  # noqa: F401
