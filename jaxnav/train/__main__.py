@@ -13,8 +13,10 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import shlex
+import shutil
 import signal
 import sys
+import threading
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -283,15 +285,43 @@ def _prepare_training(
 def main(argv: Sequence[str] | None = None) -> int:
     """Train as the flags in ``argv`` (default: the command line's) say; the exit code."""
     locks: list[run_dir.RunLock] = []
+    run: list[tuple[Path, bool]] = []  # the run's out once known, and whether it is new
+    if threading.current_thread() is threading.main_thread():
+        # Ctrl-C before training (the command's start's one-line exit is jaxnav's) is
+        # answered below; training's own handler takes over around the training loop
+        signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
-        return _main(argv, locks)
+        return _main(argv, locks, run)
+    except KeyboardInterrupt:
+        for lock in locks:
+            lock.release()
+        out, new = run[0] if run else (None, False)
+        return stopped_early(out, new and bool(locks))
     finally:  # the OS drops it when the process ends; a caller in-process may go on
         for lock in locks:
             lock.release()
 
 
-def _main(argv: Sequence[str] | None, locks: list[run_dir.RunLock]) -> int:
-    """``main``, holding the run's lock (put in ``locks``) from before anything is written."""
+def stopped_early(out: Path | None, created: bool) -> int:
+    """Report a SIGINT before training began in one line, exit code 130: how to continue a
+    run whose config.json is written; else a run directory this process ``created`` holds
+    nothing and goes."""
+    partial = None if out is None else run_dir.partial_dir(out)
+    if partial is not None and (partial / "config.json").is_file():
+        how = f"continue with: python -m jaxnav.train --resume {shlex.quote(str(out))}"
+    else:
+        if created and partial is not None:
+            shutil.rmtree(partial, ignore_errors=True)  # only its lock file: nothing to keep
+        how = "nothing was trained or written"
+    print(f"jaxnav.train: stopped by SIGINT before training began; {how}", file=sys.stderr)
+    return 128 + signal.SIGINT
+
+
+def _main(
+    argv: Sequence[str] | None, locks: list[run_dir.RunLock], run: list[tuple[Path, bool]]
+) -> int:
+    """``main``, holding the run's lock (put in ``locks``) from before anything is written;
+    ``(out, new run)`` in ``run`` once known."""
     prog = "jaxnav.train"
     t_start = time.perf_counter()
     argv = sys.argv[1:] if argv is None else list(argv)
@@ -299,6 +329,7 @@ def _main(argv: Sequence[str] | None, locks: list[run_dir.RunLock]) -> int:
         args, config, out, partial, notes, trainer = prepare_training(argv)
     except (UsageError, ValueError) as e:
         return fail(prog, str(e))
+    run.append((out, args.resume is None))
     for note in notes:
         runner.print_primary(note)
     resume = f"python -m jaxnav.train --resume {shlex.quote(str(out))}"
