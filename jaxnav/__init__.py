@@ -14,7 +14,8 @@ import sys
 import threading
 from typing import TYPE_CHECKING, Any
 
-__version__ = "0.1.0"
+from jaxnav.version import __version__ as __version__  # the package's version, re-exported
+
 __all__ = ["Environment", "EnvParams", "EnvState", "env_config", "make", "registered_envs"]
 
 _HOME = {

@@ -32,13 +32,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxnav import __version__, run_dir
+from jaxnav import run_dir
 from jaxnav.agents.dqn import QNetwork, check_input_fits
 from jaxnav.config import TrainConfig
 from jaxnav.deploy.policy import FORMAT, FORMAT_VERSION, Policy
 from jaxnav.envs import grid_maze
 from jaxnav.envs.robot import env as robot_env
 from jaxnav.safe_io import check_output_file
+from jaxnav.version import __version__
 
 FORMATS = ("npz", "onnx")
 ONNX_OPSET = 17  # LayerNormalization's first opset
