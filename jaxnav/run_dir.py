@@ -389,7 +389,9 @@ def policy_env(
             )
     if env is None or env == own_env:
         return own_env, {**own_kwargs, **overrides}
-    carried = {k: trained[k] for k in CARRIED_FIELDS if k in trained}
+    # the fields ``env`` has (a grid's size is no robot's); ValueError for bad overrides
+    fields = {f.name for f in dataclasses.fields(env_config(env, **overrides))}
+    carried = {k: trained[k] for k in CARRIED_FIELDS if k in trained and k in fields}
     return env, {**carried, **overrides}
 
 
