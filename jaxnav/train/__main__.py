@@ -286,10 +286,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Train as the flags in ``argv`` (default: the command line's) say; the exit code."""
     locks: list[run_dir.RunLock] = []
     run: list[tuple[Path, bool]] = []  # the run's out once known, and whether it is new
-    if threading.current_thread() is threading.main_thread():
+    main_thread = threading.current_thread() is threading.main_thread()
+    if main_thread:
         # Ctrl-C before training (the command's start's one-line exit is jaxnav's) is
         # answered below; training's own handler takes over around the training loop
-        signal.signal(signal.SIGINT, signal.default_int_handler)
+        previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         return _main(argv, locks, run)
     except KeyboardInterrupt:
@@ -300,6 +301,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     finally:  # the OS drops it when the process ends; a caller in-process may go on
         for lock in locks:
             lock.release()
+        if main_thread and previous is not None:  # None: a handler not set from Python
+            signal.signal(signal.SIGINT, previous)
 
 
 def stopped_early(out: Path | None, created: bool) -> int:
