@@ -8,9 +8,14 @@ from __future__ import annotations
 
 import importlib
 import importlib.util
+import os
+import signal
+import sys
+import threading
 from typing import TYPE_CHECKING, Any
 
-__version__ = "0.1.0"
+from jaxnav.version import __version__ as __version__  # the package's version, re-exported
+
 __all__ = ["Environment", "EnvParams", "EnvState", "env_config", "make", "registered_envs"]
 
 _HOME = {
@@ -25,6 +30,35 @@ _HOME = {
 if TYPE_CHECKING:
     from jaxnav.environment import Environment, EnvParams, EnvState
     from jaxnav.registration import env_config, make, registered_envs
+
+
+def _command_of(orig_argv: list[str]) -> str | None:
+    """The jaxnav module a ``python [options] -m MODULE`` command line runs, else None."""
+    for i, arg in enumerate(orig_argv[1:], 1):
+        module = orig_argv[i + 1] if arg == "-m" and i + 1 < len(orig_argv) else None
+        if arg.startswith("-m") and arg != "-m":
+            module = arg[2:]
+        if module is not None:
+            return module.removesuffix(".__main__") if module.startswith("jaxnav") else None
+        if not arg.startswith("-"):
+            return None
+    return None
+
+
+def _stopped_while_starting(signum: int, frame: Any) -> None:
+    if getattr(sys.modules.get("__main__"), "main", None) is not None:
+        signal.default_int_handler(signum, frame)  # the command runs: its KeyboardInterrupt
+    # still importing: nothing written yet, and an exception could land in a gc callback
+    os.write(2, f"{_COMMAND}: stopped by {signal.Signals(signum).name}\n".encode())
+    os._exit(128 + signum)
+
+
+# ``python -m jaxnav.<command>`` imports this package first ("-m" is sys.argv[0] until the
+# command's module runs): Ctrl-C while JAX imports, before the command's ``main`` is defined,
+# is one line and exit 130, not a traceback
+_COMMAND = _command_of(getattr(sys, "orig_argv", []))
+if sys.argv[:1] == ["-m"] and _COMMAND and threading.current_thread() is threading.main_thread():
+    signal.signal(signal.SIGINT, _stopped_while_starting)
 
 
 def __getattr__(name: str) -> Any:

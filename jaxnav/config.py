@@ -113,23 +113,19 @@ class TrainConfig:
     def num_logs(self) -> int:
         return max(1, math.ceil(self.total_timesteps / self.steps_per_log))
 
-    def check_whole_intervals(self) -> None:
-        """``ValueError`` unless ``total_timesteps`` is a whole number of logging intervals:
-        a run is one scan over intervals of ``iterations_per_log`` iterations of ``num_envs *
-        rollout_length`` env steps, so any other count would be rounded up and train more
-        steps than asked for. The command lines call it (``validate`` does not: library
-        callers may want the rounding); the message names their flags."""
-        total, per_log = self.total_timesteps, self.steps_per_log
-        if total % per_log == 0:
-            return
-        below, above = total // per_log * per_log, (total // per_log + 1) * per_log
-        e_g = f"{below} or {above}" if below else f"{above}"
-        raise ValueError(
-            f"--total-timesteps {total}: a run trains whole logging intervals of {per_log} env "
-            f"steps here ({self.iterations_per_log} iterations of {self.steps_per_iteration} "
-            f"env steps; --log-interval {self.log_interval}); use a multiple of {per_log}, "
-            f"e.g. {e_g}, or change --log-interval or --num-envs"
+    def whole_intervals(self) -> tuple[TrainConfig, str]:
+        """``(config, note)``: this config with ``total_timesteps`` rounded up to the steps a run
+        trains, a whole number of logging intervals (a run is one scan over intervals of
+        ``iterations_per_log`` iterations of ``num_envs * rollout_length`` env steps), and a
+        one-line note of the rounding naming the command lines' flag (empty when none)."""
+        total, trained = self.total_timesteps, self.num_logs * self.steps_per_log
+        if total == trained:
+            return self, ""
+        note = (
+            f"--total-timesteps {total} rounded up to {trained} ({self.num_logs} logging "
+            f"interval{'s' if self.num_logs > 1 else ''} of {self.steps_per_log} env steps)"
         )
+        return dataclasses.replace(self, total_timesteps=trained), note
 
     @property
     def first_learning_iteration(self) -> int:

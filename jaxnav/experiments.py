@@ -749,7 +749,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             ]
         for study in studies:  # every value checked before anything is trained or written
             study.config.validate()
-            study.config.check_whole_intervals()  # exactly the steps asked for
+        rounded = [s.config.whole_intervals() for s in studies]  # the steps a run trains
+        studies = [
+            dataclasses.replace(s, config=c) for s, (c, _) in zip(studies, rounded, strict=True)
+        ]
+        for study in studies:
             for suite in study.suites:
                 cfg = env_config(suite.env, **suite.env_kwargs)
                 if suite.first_layout and cfg.num_layouts <= suite.first_layout:
@@ -762,6 +766,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         run_dir.check_writable(out)
     except (UsageError, ValueError) as e:
         return fail(prog, str(e))
+    for note in dict.fromkeys(note for _, note in rounded if note):
+        print(note)
     enable_compilation_cache()
     seeds = [args.seed + i for i in range(args.seeds)]
     command = "python -m jaxnav.experiments " + " ".join(

@@ -32,12 +32,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxnav import __version__, run_dir
+from jaxnav import run_dir
 from jaxnav.agents.dqn import QNetwork, check_input_fits
 from jaxnav.config import TrainConfig
 from jaxnav.deploy.policy import FORMAT, FORMAT_VERSION, Policy
 from jaxnav.envs import grid_maze
 from jaxnav.envs.robot import env as robot_env
+from jaxnav.safe_io import check_output_file
+from jaxnav.version import __version__
 
 FORMATS = ("npz", "onnx")
 ONNX_OPSET = 17  # LayerNormalization's first opset
@@ -339,32 +341,16 @@ def flax_params(arrays: dict[str, np.ndarray], network: dict[str, Any]) -> dict[
     return {"params": jax.tree.map(jnp.asarray, p)}
 
 
-# What a policy needs of an env other than its own (another id, e.g. a maze file): the fields
-# that shape its observation and its actions' effect (and the robot's fast CPU backend)
-CARRIED_FIELDS = {
-    "robot": (
-        "num_lasers", "laser_fov", "laser_range", "obs_absolute", "obs_proximity",
-        "obs_heading", "obs_goal_bearing", "waypoint_distance", "waypoint_moves", "frames",
-        "goal_range", "obs_last_action", "obs_radius", "speed", "turn_speed", "dt", "radius",
-        "backend",
-    ),
-    "grid": ("size", "obs_mode", "sensor_radius"),
-}  # fmt: skip
-
-
 def env_for(
     policy: Policy, env_id: str | None = None, overrides: dict[str, Any] | None = None
 ) -> tuple[str, dict[str, Any]]:
-    """``(env id, env kwargs)`` to run ``policy`` on: its own env with ``overrides`` on its
-    kwargs, or the env ``env_id`` with the policy's ``CARRIED_FIELDS`` and ``overrides``."""
+    """``(env id, env kwargs)`` to run ``policy`` on (``run_dir.policy_env``): its own env with
+    ``overrides`` on its kwargs, or the env ``env_id`` with the policy's carried fields
+    (``run_dir.CARRIED_FIELDS``) and ``overrides``."""
     meta = policy.metadata
-    overrides = dict(overrides or {})
-    if env_id is None or env_id == meta["env_id"]:
-        return meta["env_id"], {**meta["env_kwargs"], **overrides}
-    family = "robot" if meta.get("sensors") else "grid"
     trained = meta.get("env_config") or {}
-    carried = {k: trained[k] for k in CARRIED_FIELDS[family] if k in trained}
-    return env_id, {**carried, **overrides}
+    own = meta["env_id"], meta["env_kwargs"]
+    return run_dir.policy_env(*own, trained, env_id, dict(overrides or {}))
 
 
 def to_trainer(
@@ -570,10 +556,7 @@ def check_out(out: Path, fmt: str) -> None:
         raise ValueError(f"--format {fmt}: must be one of {', '.join(FORMATS)}")
     if out.suffix != f".{fmt}":
         raise ValueError(f"--out {out}: must end in .{fmt} for --format {fmt}")
-    if not out.parent.is_dir():
-        raise ValueError(f"--out {out}: directory {out.parent} does not exist")
-    if out.is_dir():
-        raise ValueError(f"--out {out}: is a directory")
+    check_output_file(out)  # a link, a directory or a device is refused, not replaced
     if fmt == "onnx":
         try:
             import onnx  # noqa: F401

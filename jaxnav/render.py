@@ -292,10 +292,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             params = run_dir.load_trained_params(args.run, trainer)
             env_id, overrides = env_from_args(args, args.env)  # --maze-file: RobotMaze-v0
             if env_id is not None or overrides:
-                kwargs = {**(config.env_kwargs if env_id is None else {}), **overrides}
-                env_trainer = Trainer(
-                    dataclasses.replace(config, env=env_id or config.env, env_kwargs=kwargs)
-                )
+                env_id, kwargs = run_dir.run_env(config, env_id, overrides)  # sensors go along
+                env_trainer = Trainer(dataclasses.replace(config, env=env_id, env_kwargs=kwargs))
                 dqn.check_input_fits(
                     env_trainer.config.env, env_trainer.network_input, trainer.network_input
                 )

@@ -27,6 +27,7 @@ from jaxnav.agents import dqn
 from jaxnav.checkpoints import sha256_of, this_process_only
 from jaxnav.config import TrainConfig, upgrade_saved
 from jaxnav.host import host_info, package_version
+from jaxnav.registration import env_config
 from jaxnav.safe_io import remove_quietly
 from jaxnav.train import Trainer
 
@@ -351,6 +352,57 @@ def load_trained_params(run: Path, trainer: Trainer) -> Any:
     init = lambda k: trainer.network.init(k, jnp.zeros((1, trainer.obs_size)))  # noqa: E731
     like = jax.eval_shape(jax.vmap(init), seed_keys(trainer.config))
     return load_params(run, like)
+
+
+# What a policy needs of an env other than its own (another id, e.g. a maze file): the fields
+# that shape its observation and its actions' effect (and the robot's fast CPU backend)
+CARRIED_FIELDS = (
+    "num_lasers", "laser_fov", "laser_range", "obs_absolute", "obs_proximity", "obs_heading",
+    "obs_goal_bearing", "waypoint_distance", "waypoint_moves", "frames", "goal_range",
+    "obs_last_action", "obs_radius", "speed", "turn_speed", "dt", "radius", "backend",  # robot
+    "size", "obs_mode", "sensor_radius", "waypoint_cells",  # grid envs
+)  # fmt: skip
+# those of them that set what the network reads: a policy only runs with the trained values
+OBSERVATION_FIELDS = frozenset(
+    {"num_lasers", "laser_fov", "laser_range", "obs_absolute", "obs_proximity", "obs_heading"}
+    | {"obs_goal_bearing", "waypoint_distance", "waypoint_moves", "frames", "goal_range"}
+    | {"obs_last_action", "obs_radius"}
+    | {"obs_mode", "sensor_radius", "waypoint_cells"}
+)
+
+
+def policy_env(
+    own_env: str,
+    own_kwargs: dict[str, Any],
+    trained: dict[str, Any],
+    env: str | None,
+    overrides: dict[str, Any],
+) -> tuple[str, dict[str, Any]]:
+    """``(env id, env kwargs)`` to run a policy trained on ``own_env`` with ``own_kwargs``
+    (whose env config's fields are ``trained``) on: its own env with ``overrides`` on its
+    kwargs, or ``env`` with the policy's ``CARRIED_FIELDS`` and ``overrides``. ``ValueError``
+    (one line) for an override of an ``OBSERVATION_FIELDS`` field away from its trained value."""
+    for name, value in overrides.items():
+        if name in OBSERVATION_FIELDS and name in trained and value != trained[name]:
+            raise ValueError(
+                f"--env-arg {name}={value!r}: the policy was trained on observations with "
+                f"{name}={trained[name]!r}; leave it out (it goes with the policy)"
+            )
+    if env is None or env == own_env:
+        return own_env, {**own_kwargs, **overrides}
+    # the fields ``env`` has (a grid's size is no robot's); ValueError for bad overrides
+    fields = {f.name for f in dataclasses.fields(env_config(env, **overrides))}
+    carried = {k: trained[k] for k in CARRIED_FIELDS if k in trained and k in fields}
+    return env, {**carried, **overrides}
+
+
+def run_env(
+    config: TrainConfig, env: str | None, overrides: dict[str, Any]
+) -> tuple[str, dict[str, Any]]:
+    """``policy_env`` for the run trained with ``config``: the env a run directory's policy is
+    evaluated or drawn on, its observation settings carried to another env id."""
+    trained = dataclasses.asdict(env_config(config.env, **config.env_kwargs))
+    return policy_env(config.env, config.env_kwargs, trained, env, overrides)
 
 
 def load_run_on(

@@ -7,6 +7,7 @@ import json
 import shutil
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 from conftest import SMALL_GRID_FLAGS  # pytest puts tests/ on sys.path
@@ -141,12 +142,11 @@ def test_cli_process_exit_code_and_help():
 
 
 def test_evaluate_refuses_an_env_whose_observations_do_not_fit(tiny_run, capsys):
-    assert evaluate_main([str(tiny_run), "--env", "GridMaze-Random-v0"]) == 2
+    argv = [str(tiny_run), "--env", "RobotSimple-v0", "--env-arg", "backend=kinematic"]
+    assert evaluate_main(argv) == 2
     err = capsys.readouterr().err.strip()
-    assert err == (
-        "jaxnav.evaluate: error: --env GridMaze-Random-v0: observations (33,) "
-        "do not fit the run's network (10,) one-hot encoded to 34"
-    )
+    assert err.startswith("jaxnav.evaluate: error: --env RobotSimple-v0: observations (")
+    assert err.endswith("do not fit the run's network (10,) one-hot encoded to 34")
     # the same observation shape, but a grid of another size: other one-hot widths
     assert evaluate_main([str(tiny_run), "--env-arg", "size=6"]) == 2
     err = capsys.readouterr().err.strip()
@@ -178,3 +178,54 @@ def test_a_run_saved_with_updates_per_iteration_loads_as_its_replay_ratio(tiny_r
     del four["replay_ratio"]
     config = run_dir.config_from_json({**four, "updates_per_iteration": 4})
     assert config.replay_ratio == 8.0 and config.updates_per_iteration == 4
+
+
+# An editable install (pip install -e .) as setuptools writes one: a finder after Python's path
+# finder maps the package to its source folder. Python's path finder takes a folder named
+# jaxnav in the working directory (as in the folder holding a clone named jaxnav) for a
+# namespace package first, so the package's __init__ never runs; its modules are found
+# beneath it by the install's finder. ``sys.argv[1:]``: the module to run and its flags.
+EDITABLE_INSTALL = """
+import runpy, sys
+from importlib.machinery import PathFinder
+
+SOURCE = {source!r}
+
+
+class EditableFinder:
+    @classmethod
+    def find_spec(cls, fullname, path=None, target=None):
+        if fullname == "jaxnav":
+            return PathFinder.find_spec(fullname, [SOURCE])
+        if fullname.rpartition(".")[0] == "jaxnav":
+            return PathFinder.find_spec(fullname, [SOURCE + "/jaxnav"])
+        return None
+
+
+sys.meta_path.insert(sys.meta_path.index(PathFinder) + 1, EditableFinder)
+if sys.argv[1] == "--shadowed":
+    import jaxnav
+
+    print(getattr(jaxnav, "__file__", None))
+else:
+    sys.argv = sys.argv[1:]
+    runpy.run_module(sys.argv[0], run_name="__main__", alter_sys=True)
+"""
+
+
+def test_commands_run_from_the_folder_holding_a_clone_named_jaxnav(tmp_path):
+    """Every command failed there: "cannot import name '__version__' from 'jaxnav'"."""
+    (tmp_path / "jaxnav").mkdir()  # the clone: a README, the package one level down
+    (tmp_path / "jaxnav" / "README.md").write_text("jaxnav\n")
+    source = str(Path(__file__).resolve().parents[1])
+    code = EDITABLE_INSTALL.format(source=source)
+
+    def run(*args: str) -> subprocess.CompletedProcess:
+        argv = [sys.executable, "-c", code, *args]
+        return subprocess.run(argv, cwd=tmp_path, capture_output=True, text=True, timeout=300)
+
+    shadowed = run("--shadowed")
+    assert shadowed.stdout.strip() == "None", shadowed  # the namespace package, as a user has
+    for command in ("jaxnav.export", "jaxnav.evaluate", "jaxnav.render"):
+        done = run(command, "--help")
+        assert done.returncode == 0 and f"usage: python -m {command}" in done.stdout, done.stderr

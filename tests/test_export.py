@@ -150,6 +150,43 @@ def test_metadata_is_the_same_in_both_files_and_describes_every_input(exported):
         assert names == names[:frame] * layout["frames"]
 
 
+def test_no_action_from_a_non_finite_observation(exported):
+    """A NaN gave NaN Q-values and action 0 (drive forward): refused, naming where it is."""
+    *_, obs, _, npz, _ = exported
+    policy = Policy.load(npz)
+    for value in (np.nan, np.inf, -np.inf):
+        bad = obs[:3].astype(np.float64)  # the grid's index observations are integers
+        bad[2, 1] = value
+        with pytest.raises(ValueError, match=rf"observation\[2, 1\]={value}: not finite"):
+            policy.act(bad)
+        with pytest.raises(ValueError, match=rf"observation\[1\]={value}: not finite"):
+            policy.q_values(bad[2])
+
+
+def test_a_damaged_policy_file_is_named_in_one_line(exported, tmp_path, capsys):
+    from jaxnav.deploy.policy import main as describe_main
+
+    npz = exported[4]
+    data = npz.read_bytes()
+    cases = {
+        "truncated": (data[: len(data) // 2], "truncated or damaged policy file"),
+        "garbage": (bytes(range(256)) * 4, "not a jaxnav policy file (not an npz archive)"),
+        "empty": (b"", "not a jaxnav policy file"),
+        "no metadata": (None, "not a jaxnav policy file (no metadata)"),
+    }
+    for name, (content, named) in cases.items():
+        path = tmp_path / f"{name}.npz"
+        if content is None:
+            np.savez(path, dense0_kernel=np.zeros((2, 2), np.float32))
+        else:
+            path.write_bytes(content)
+        with pytest.raises(ValueError, match=re.escape(f"{path}: {named}")):
+            Policy.load(path)
+        assert describe_main([str(path)]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and str(path) in err and named in err, (name, err)
+
+
 def test_grid_index_layout_reads_the_state():
     """The grid's layout names say which value is what: rebuilt from the state by name, the
     observation is the env's."""
@@ -323,7 +360,7 @@ def test_a_robot_policy_runs_on_a_maze_file_with_its_own_sensors(tmp_path):
     assert on_maze.env.name == "RobotMaze-v0" and on_maze.obs_size == trainer.obs_size
     assert jax.tree.leaves(stacked)[0].shape[0] == 1  # one seed
     # an override that changes the observation is refused in one line
-    with pytest.raises(ValueError, match="do not fit the run's network"):
+    with pytest.raises(ValueError, match="--env-arg num_lasers=8: .* with num_lasers=32;"):
         export.to_trainer(policy, env_id, {"maze_file": maze, "num_lasers": 8})
 
 

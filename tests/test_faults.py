@@ -295,6 +295,34 @@ def test_flipped_byte_in_the_newest_checkpoint_falls_back_to_the_previous_one(
     assert_complete(out, reference)  # bitwise the uninterrupted run's metrics
 
 
+def test_a_run_of_rounded_step_counts_resumes_with_the_flags_it_was_started_with(
+    tmp_path, capsys, monkeypatch, reference
+):
+    """Started with step counts that are not whole intervals, the run records the steps it
+    trains; its own command line resumes it to the run of those steps, bit for bit."""
+    out = tmp_path / "run"
+    asked = ["--total-timesteps", "100", "--checkpoint-every", "40"]
+    flags = [*TINY, *asked, "--out", str(out)]  # the later flags win: 100 steps, every 40
+    save = checkpoints.Checkpoints.save
+
+    def then_killed(self, logs_done, *args, **kwargs):
+        save(self, logs_done, *args, **kwargs)
+        if logs_done == 2:
+            raise Killed
+
+    monkeypatch.setattr(checkpoints.Checkpoints, "save", then_killed)
+    with pytest.raises(Killed):
+        train_main(flags)
+    monkeypatch.setattr(checkpoints.Checkpoints, "save", save)
+    doc = json.loads((run_dir.partial_dir(out) / "config.json").read_text())
+    assert doc["config"]["total_timesteps"] == 128
+    assert doc["checkpointing"]["checkpoint_every"] == 32
+    capsys.readouterr()
+    assert train_main(["--resume", str(out), *asked]) == 0
+    assert "resumed from the checkpoint at env step 64" in capsys.readouterr().out
+    assert_complete(out, reference)  # the uninterrupted run of 128 steps
+
+
 def test_no_intact_checkpoint_is_refused_in_one_line(tmp_path, capsys, monkeypatch):
     out = tmp_path / "run"
     interrupted_after(out, monkeypatch, 3)
@@ -338,19 +366,24 @@ def trained(tmp_path_factory) -> Path:
     return out
 
 
-def special_files(tmp_path: Path) -> dict[str, Path]:
+def special_files(tmp_path: Path, suffix: str = ".json") -> dict[str, Path]:
     """A directory, a FIFO, a character device (where the container lets us make one), a
-    dangling symlink and a symlink loop, each named like an output file."""
-    made = {"dir": tmp_path / "dir.json", "fifo": tmp_path / "fifo.json"}
+    symlink to a file (replacing would replace the link, not the file), a dangling symlink and
+    a symlink loop, each named like an output file ending in ``suffix``."""
+    made = {"dir": tmp_path / f"dir{suffix}", "fifo": tmp_path / f"fifo{suffix}"}
     made["dir"].mkdir()
     os.mkfifo(made["fifo"])
-    made["dangling"] = tmp_path / "dangling.json"
+    (tmp_path / "kept").mkdir()
+    (tmp_path / "kept" / "file").write_text("kept")
+    made["link"] = tmp_path / f"link{suffix}"
+    made["link"].symlink_to(tmp_path / "kept" / "file")
+    made["dangling"] = tmp_path / f"dangling{suffix}"
     made["dangling"].symlink_to(tmp_path / "nowhere")
-    made["loop"] = tmp_path / "loop.json"
+    made["loop"] = tmp_path / f"loop{suffix}"
     made["loop"].symlink_to(made["loop"])
     try:
-        os.mknod(tmp_path / "null.json", 0o666 | stat.S_IFCHR, os.makedev(1, 3))
-        made["chardev"] = tmp_path / "null.json"
+        os.mknod(tmp_path / f"null{suffix}", 0o666 | stat.S_IFCHR, os.makedev(1, 3))
+        made["chardev"] = tmp_path / f"null{suffix}"
     except OSError:
         pass  # no CAP_MKNOD here; the FIFO covers a non-regular node
     return made
@@ -366,22 +399,28 @@ def nodes(root: Path) -> list[tuple]:
     ]
 
 
-def test_evaluate_and_render_refuse_outputs_that_are_not_regular_files(trained, tmp_path, capsys):
+def test_evaluate_render_and_export_refuse_outputs_that_are_not_regular_files(
+    trained, tmp_path, capsys
+):
     from jaxnav.evaluate.__main__ import main as evaluate_main
+    from jaxnav.export import main as export_main
     from jaxnav.render import main as render_main
 
-    for kind, path in special_files(tmp_path).items():
-        before = nodes(tmp_path)
-        for command, ext in ((evaluate_main, ".json"), (render_main, ".png")):
-            target = path.with_name(path.stem + ext) if ext != ".json" else path
-            if ext != ".json" and not os.path.lexists(target):
-                os.rename(path, target)  # the same kind of node, named .png
-                before = nodes(tmp_path)
-            err = one_line_error(
-                capsys, 2, command([str(trained), "--out", str(target), "--episodes", "1"])
-            )
+    commands = {
+        ".json": lambda out: evaluate_main([str(trained), "--out", out, "--episodes", "1"]),
+        ".png": lambda out: render_main([str(trained), "--out", out, "--episodes", "1"]),
+        ".npz": lambda out: export_main([str(trained), "--out", out]),
+    }
+    for ext, command in commands.items():
+        (tmp_path / ext[1:]).mkdir()
+        for kind, target in special_files(tmp_path / ext[1:], ext).items():
+            before = nodes(tmp_path)
+            err = one_line_error(capsys, 2, command(str(target)))
             assert f"--out {target}" in err, (kind, err)
+            if kind in ("link", "dangling", "loop"):
+                assert "symbolic link" in err, err
             assert nodes(tmp_path) == before, kind  # nothing replaced
+        assert (tmp_path / ext[1:] / "kept" / "file").read_text() == "kept"
     assert not list(trained.glob("*.tmp")) and not list(tmp_path.glob(".*partial*"))
 
 

@@ -252,6 +252,68 @@ def test_sigterm_during_the_final_evaluation_exits_143_and_resume_completes(
     assert summary["trained"] == json.loads((ref / "summary.json").read_text())["trained"]
 
 
+# ------------------------------------------------------------------ 7b. Ctrl-C while starting
+def test_ctrl_c_while_the_command_imports_is_one_line_exit_130(tmp_path):
+    """JAX takes seconds to import: a SIGINT then was a KeyboardInterrupt traceback."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "run"
+    argv = [*TINY_FLAGS, "--total-timesteps", "64", "--out", str(out)]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "jaxnav.train", *argv],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
+    time.sleep(0.5)  # jaxnav is imported, JAX is loading
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    assert err.count("\n") == 1 and err.startswith("jaxnav.train: stopped by SIGINT"), err
+    assert not list(tmp_path.iterdir())  # nothing written
+
+
+@pytest.mark.parametrize("moment", ["building the env", "the run directory written"])
+def test_ctrl_c_before_training_began_is_one_line_exit_130_and_resumable(
+    moment, tmp_path, capsys, monkeypatch
+):
+    import os
+    import signal
+
+    from jaxnav import runner
+    from jaxnav.train import __main__ as train_cli
+
+    def then_ctrl_c(real):
+        def call(*args, **kwargs):
+            result = real(*args, **kwargs)
+            os.kill(os.getpid(), signal.SIGINT)  # as the terminal sends it
+            return result
+
+        return call
+
+    if moment == "building the env":
+        monkeypatch.setattr(train_cli, "Trainer", then_ctrl_c(train_cli.Trainer))
+    else:
+        monkeypatch.setattr(runner, "open_run", then_ctrl_c(runner.open_run))
+    out = tmp_path / "run"
+    argv = [*TINY_FLAGS, "--total-timesteps", "64", "--eval-episodes", "0", "--out", str(out)]
+    err = one_line_error(capsys, 130, train_main(argv))
+    assert err.startswith("jaxnav.train: stopped by SIGINT before training began; ")
+    monkeypatch.undo()
+    if moment == "building the env":
+        assert err.endswith("nothing was trained or written") and not list(tmp_path.iterdir())
+        assert train_main(argv) == 0  # nothing in the way of the same command
+    else:
+        assert err.endswith(f"continue with: python -m jaxnav.train --resume {out}")
+        assert train_main(["--resume", str(out)]) == 0
+    assert (out / "summary.json").is_file()
+
+
 # ------------------------------------------------------------------ 8. the programs cache
 class Planted:
     """A pickle that, when loaded, creates a file: what a hostile cache entry could do."""

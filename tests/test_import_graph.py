@@ -23,6 +23,7 @@ LAYERS: list[list[str]] = [
         "jaxnav.deploy",
         "jaxnav.loggers",
         "jaxnav.host",
+        "jaxnav.version",
     ],
     ["jaxnav.pretrained"],
     ["jaxnav.environment", "jaxnav.checkpoints"],

@@ -72,3 +72,55 @@ def test_bad_pretrained_arguments_are_one_line_errors(argv, message, capsys):
         assert main(argv) == 2
         err = capsys.readouterr().err
         assert message in err and err.count("\n") == 1
+
+
+def test_add_refuses_a_damaged_file_or_a_shipped_name_and_copies_nothing(tmp_path, capsys):
+    from jaxnav.pretrained.__main__ import main as pretrained_main
+
+    def package() -> tuple[list[str], bytes]:
+        npz = sorted(p.name for p in pretrained.HERE.glob("*.npz"))
+        return npz, pretrained.MANIFEST.read_bytes()
+
+    before = package()
+    shipped = pretrained.path("gridmaze-dqn").read_bytes()
+    cases = {
+        "garbage": (bytes(range(256)) * 4, "not a jaxnav policy file (not an npz archive)"),
+        "truncated": (shipped[: len(shipped) // 2], "truncated or damaged policy file"),
+        "shipped": (shipped, "name 'gridmaze-dqn': a policy of that name is shipped; pass --force"),
+    }
+    for case, (content, named) in cases.items():
+        file = tmp_path / f"{case}.npz"
+        file.write_bytes(content)
+        name = "gridmaze-dqn" if case == "shipped" else f"new-{case}"
+        assert pretrained_main(["add", name, str(file), "--command", "python -m jaxnav.train"]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and named in err, (case, err)
+        assert case == "shipped" or str(file) in err
+        assert package() == before, case  # nothing copied in, the manifest as it was
+
+
+def test_add_with_force_replaces_a_shipped_policy(tmp_path, monkeypatch, capsys):
+    """In a copy of the package folder: --force measures the file, copies it in and rewrites
+    its entry."""
+    import shutil
+
+    from jaxnav.pretrained import __main__ as pretrained_cli
+    from jaxnav.pretrained import check
+
+    folder = tmp_path / "pretrained"
+    folder.mkdir()
+    shutil.copy(pretrained.MANIFEST, folder / "manifest.json")
+    source = tmp_path / "policy.npz"
+    shutil.copy(pretrained.path("gridmaze-dqn"), source)
+    for module in (pretrained, check, pretrained_cli):
+        monkeypatch.setattr(module, "HERE", folder, raising=False)
+    for module in (pretrained, check):
+        monkeypatch.setattr(module, "MANIFEST", folder / "manifest.json")
+    (folder / "gridmaze-dqn.npz").write_bytes(b"the old file")
+    argv = ["add", "gridmaze-dqn", str(source), "--command", "c", "--episodes", "20", "--force"]
+    assert pretrained_cli.main(argv) == 0
+    assert "added gridmaze-dqn: success" in capsys.readouterr().out
+    entry = pretrained.entry("gridmaze-dqn")
+    assert entry["measured"]["episodes"] == 20 and entry["commands"] == ["c"]
+    assert (folder / "gridmaze-dqn.npz").read_bytes() == source.read_bytes()
+    assert entry["sha256"] == pretrained.sha256(source)

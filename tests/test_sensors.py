@@ -5,7 +5,10 @@ fields of view, mounting) is read as documented."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import re
+import types
 
 import jax
 import jax.numpy as jnp
@@ -47,7 +50,9 @@ def synthesize(env, params, state, num: int, angle_min: float, range_max: float)
     angles = angle_min + 2 * np.pi / num * np.arange(num)
     ranges = cast(env, params, state, angles, 1e6).astype(np.float64)
     ranges[ranges > range_max] = np.inf
-    return LaserScan(ranges, angle_min, 2 * np.pi / num, range_max)
+    return LaserScan(
+        angle_min=angle_min, angle_increment=2 * np.pi / num, range_max=range_max, ranges=ranges
+    )
 
 
 _JITTED: dict[int, tuple] = {}
@@ -135,9 +140,63 @@ def test_readings_follow_rep117():
     np.testing.assert_array_equal(got, [1.0, np.inf, 0.0, np.inf, np.inf, np.inf, 2.0, 3.0])
 
 
+def test_a_scan_is_built_by_ros_field_names_only():
+    """Positional ranges could swap range_min and range_max (a wall 0.3 m away then reads as
+    free space): construction takes keywords, in ROS's field order, or a ROS message."""
+    fields = [f.name for f in dataclasses.fields(LaserScan)]
+    assert fields == ["angle_min", "angle_increment", "range_min", "range_max", "ranges"]
+    with pytest.raises(TypeError):
+        LaserScan(0.0, math.pi / 4, 0.1, 8.0, [0.3] * 8)  # the mistake, refused
+    msg = types.SimpleNamespace(
+        header=None, angle_min=0.0, angle_max=7 * math.pi / 4, angle_increment=math.pi / 4,
+        time_increment=0.0, scan_time=0.1, range_min=0.1, range_max=8.0, ranges=[0.3] * 8,
+        intensities=[],
+    )  # fmt: skip
+    scan = LaserScan.from_msg(msg)
+    assert (scan.range_min, scan.range_max) == (0.1, 8.0)
+    np.testing.assert_array_equal(resample_scan(scan, [0.0, math.pi]), [0.3, 0.3])
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "named"),
+    [
+        ("range_max", math.nan, "range_max=nan: must be above range_min=0.1"),
+        ("range_min", 9.0, "range_max=8.0: must be above range_min=9.0"),
+        ("range_min", -1.0, "range_min=-1.0: must be non-negative"),
+        ("range_min", math.nan, "range_min=nan: must be finite"),
+        ("angle_increment", 1e20, "angle_increment=1e+20: must be nonzero and at most 2*pi"),
+        ("angle_increment", 0.0, "angle_increment=0.0"),
+        ("angle_min", math.inf, "angle_min=inf: must be finite"),
+        ("ranges", [], "ranges: the scan has no readings"),
+    ],
+)
+def test_a_scan_that_would_read_walls_as_free_space_is_refused(field, value, named):
+    """Each of these read an obstacle 0.3 m away as free space, or garbage, before."""
+    scan = {"angle_min": 0.0, "angle_increment": math.pi / 4, "range_min": 0.1, "range_max": 8.0}
+    scan = {**scan, "ranges": [0.3] * 8, field: value}
+    with pytest.raises(ValueError, match=re.escape(named)) as e:
+        resample_scan(LaserScan(**scan), [0.0])
+    assert "\n" not in str(e.value)
+
+
+@pytest.mark.parametrize("bad", ["pose", "goal", "waypoint"])
+@pytest.mark.parametrize("value", [math.nan, math.inf])
+def test_a_non_finite_pose_goal_or_waypoint_gives_no_observation(robot, bad, value):
+    _, _, meta = robot
+    scan = LaserScan(
+        angle_min=-math.pi, angle_increment=math.pi / 360, range_max=12.0, ranges=[2.0] * 720
+    )
+    where = {"pose": [1.0, 1.0, 0.0], "goal": [3.0, 2.0], "waypoint": [2.0, 1.5]}
+    where[bad][1] = value
+    with pytest.raises(ValueError, match=rf"{bad}=\(.*{value}.*\): must be finite"):
+        ScanObservation(meta)(scan, **where)
+
+
 def test_beams_take_the_nearest_reading_and_mounting_turns_the_scan():
     ranges = np.arange(360, dtype=float) / 100 + 1  # reading i at i degrees
-    scan = LaserScan(ranges, 0.0, math.radians(1.0), 10.0)
+    scan = LaserScan(
+        angle_min=0.0, angle_increment=math.radians(1.0), range_max=10.0, ranges=ranges
+    )
     beams = np.radians([0.0, 10.4, -90.0, 179.6])  # -90 is reading 270; 179.6 -> 180
     np.testing.assert_allclose(resample_scan(scan, beams), [1.0, 1.10, 3.70, 2.80])
     # a scanner turned 90 degrees left: its reading 0 looks along the robot's +90 degrees
@@ -145,14 +204,24 @@ def test_beams_take_the_nearest_reading_and_mounting_turns_the_scan():
         resample_scan(scan, np.radians([90.0]), mount_yaw=math.pi / 2), [1.0]
     )
     # a clockwise scan (negative increment) reads the same directions
-    clockwise = LaserScan(ranges[::-1], math.radians(359.0), math.radians(-1.0), 10.0)
+    clockwise = LaserScan(
+        angle_min=math.radians(359.0),
+        angle_increment=math.radians(-1.0),
+        range_max=10.0,
+        ranges=ranges[::-1],
+    )
     np.testing.assert_allclose(resample_scan(clockwise, beams), [1.0, 1.10, 3.70, 2.80])
     # beam_width: the nearest range within the window
     np.testing.assert_allclose(resample_scan(scan, np.radians([20.0]), beam_width=0.2), [1.15])
 
 
 def test_beams_outside_a_partial_scan_are_refused_or_filled():
-    scan = LaserScan(np.ones(271), math.radians(-135), math.radians(1.0), 10.0)  # 270 degrees
+    scan = LaserScan(  # 270 degrees
+        angle_min=math.radians(-135),
+        angle_increment=math.radians(1.0),
+        range_max=10.0,
+        ranges=np.ones(271),
+    )
     beams = np.radians([0.0, 135.0, 180.0])
     with pytest.raises(
         ValueError, match=r"policy beam at 180.0 deg is outside .*\[-135.0, 135.0\]"

@@ -23,6 +23,8 @@ import json
 import math
 import os
 import sys
+import zipfile
+import zlib
 from collections.abc import Sequence
 from typing import Any
 
@@ -50,11 +52,18 @@ def expand_onehot(obs: np.ndarray, onehot_sizes: Sequence[int]) -> np.ndarray:
 def forward(arrays: dict[str, np.ndarray], network: dict[str, Any], obs: np.ndarray) -> np.ndarray:
     """Q-values ``float32[..., num_actions]`` of observations ``obs[..., obs_size]`` for the
     network described by ``network`` (the metadata's ``"network"``) with weights ``arrays``."""
-    obs = np.asarray(obs)
-    if obs.shape[-1] != network["obs_size"]:
+    try:
+        obs = np.asarray(obs, np.float64)
+    except (TypeError, ValueError):
+        raise ValueError("observation: must be numbers") from None
+    if obs.ndim == 0 or obs.shape[-1] != network["obs_size"]:
         raise ValueError(
-            f"observation of {obs.shape[-1]} values; the policy reads {network['obs_size']}"
+            f"observation of shape {obs.shape}; the policy reads {network['obs_size']} values"
         )
+    if not np.isfinite(obs).all():  # no action from a NaN or an infinite input
+        where = tuple(int(i) for i in np.argwhere(~np.isfinite(obs))[0])
+        index = ", ".join(map(str, where))
+        raise ValueError(f"observation[{index}]={float(obs[where])}: not finite")
     onehot = network.get("onehot_sizes")
     x = obs.astype(np.float32) if onehot is None else expand_onehot(obs, onehot)
     eps = np.float32(network.get("layer_norm_epsilon", 1e-6))
@@ -145,8 +154,11 @@ class Policy:
     ``jaxnav.export`` recorded (observation layout, actions, sensors, env id and kwargs)."""
 
     def __init__(self, arrays: dict[str, np.ndarray], metadata: dict[str, Any]):
-        if metadata.get("format") != FORMAT:
-            raise ValueError(f"not a jaxnav policy (format {metadata.get('format')!r})")
+        """``ValueError`` (one line) unless ``metadata`` and ``arrays`` make a network of
+        this reader's format that computes Q-values."""
+        if not isinstance(metadata, dict) or metadata.get("format") != FORMAT:
+            got = metadata.get("format") if isinstance(metadata, dict) else None
+            raise ValueError(f"not a jaxnav policy (format {got!r})")
         if metadata.get("format_version", 0) > FORMAT_VERSION:
             raise ValueError(
                 f"policy format version {metadata['format_version']} is newer than this "
@@ -154,17 +166,36 @@ class Policy:
             )
         self.arrays = {k: np.asarray(v, np.float32) for k, v in arrays.items()}
         self.metadata = metadata
-        self.network = metadata["network"]
+        self.network = metadata.get("network")
+        try:  # the weights a forward pass reads, in shapes that fit: not at the first act
+            q = forward(self.arrays, self.network, np.zeros(int(self.network["obs_size"])))
+        except (KeyError, TypeError, ValueError, IndexError) as e:
+            raise ValueError(f"not a jaxnav policy (its network does not compute: {e!r})") from None
+        if q.shape != (len(metadata.get("actions", ())),):
+            raise ValueError(f"not a jaxnav policy ({q.shape[-1]} Q-values for its actions)")
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> Policy:
-        """The policy in the npz file ``path`` (``python -m jaxnav.export --format npz``)."""
-        with np.load(path, allow_pickle=False) as f:
-            if "metadata" not in f.files:
-                raise ValueError(f"{path}: not a jaxnav policy (no metadata)")
-            metadata = json.loads(str(f["metadata"]))
-            arrays = {k: f[k] for k in f.files if k != "metadata"}
-        return cls(arrays, metadata)
+        """The policy in the npz file ``path`` (``python -m jaxnav.export --format npz``);
+        ``ValueError`` (one line naming the file) for a file that is not one, or is damaged
+        or truncated."""
+        with open(path, "rb") as f:
+            if f.read(4) != b"PK\x03\x04":  # an npz is a zip archive
+                raise ValueError(f"{path}: not a jaxnav policy file (not an npz archive)")
+        try:
+            with np.load(path, allow_pickle=False) as f:
+                arrays = {k: f[k] for k in f.files}
+            metadata = json.loads(str(arrays.pop("metadata", "null")))
+        except (zipfile.BadZipFile, EOFError, zlib.error) as e:
+            raise ValueError(f"{path}: truncated or damaged policy file ({e})") from None
+        except ValueError as e:  # an object array, unreadable JSON
+            raise ValueError(f"{path}: not a jaxnav policy file ({e})") from None
+        if metadata is None:
+            raise ValueError(f"{path}: not a jaxnav policy file (no metadata)")
+        try:
+            return cls(arrays, metadata)
+        except ValueError as e:
+            raise ValueError(f"{path}: {e}") from None
 
     @property
     def obs_size(self) -> int:

@@ -1,14 +1,15 @@
 """A robot's sensor readings as an exported policy's observation, with numpy alone (no JAX).
 
 ``ScanObservation(policy.metadata)`` turns what a robot publishes, a 2D lidar scan (ROS
-``sensor_msgs/LaserScan``'s ``ranges``, ``angle_min``, ``angle_increment``, ``range_min``,
-``range_max``), its pose ``(x, y, yaw)`` (from odometry or a localizer; ``yaw_from_quaternion``
-converts a ROS orientation) and a goal ``(x, y)``, into the observation the policy was trained
-on, frames stacked as the simulator stacks them::
+``sensor_msgs/LaserScan``'s ``angle_min``, ``angle_increment``, ``range_min``, ``range_max``,
+``ranges``: ``LaserScan.from_msg(msg)``), its pose ``(x, y, yaw)`` (from odometry or a
+localizer; ``yaw_from_quaternion`` converts a ROS orientation) and a goal ``(x, y)``, into the
+observation the policy was trained on, frames stacked as the simulator stacks them::
 
     observe = ScanObservation(policy.metadata)
     observe.reset()                                  # at the start of every episode
-    action = policy.act(observe(scan, pose, goal))   # every control period (metadata's dt)
+    scan = LaserScan.from_msg(msg)                   # every control period (metadata's dt)
+    action = policy.act(observe(scan, pose, goal))
 
 Conventions, the simulator's (``jaxnav.envs.robot``): metres and radians, x forward, y left,
 angles counter-clockwise from +x (ROS REP 103). The policy's beams (metadata ``sensors``
@@ -44,16 +45,68 @@ from typing import Any
 import numpy as np
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class LaserScan:
     """One 2D lidar sweep, as ROS ``sensor_msgs/LaserScan`` has it: reading i is at angle
-    ``angle_min + i * angle_increment`` (radians; a negative increment sweeps clockwise)."""
+    ``angle_min + i * angle_increment`` (radians; a negative increment sweeps clockwise).
+    Keywords only, the fields named and ordered as ROS's (two ranges passed the other way
+    round would read every obstacle as free space); ``LaserScan.from_msg(msg)`` copies a
+    message's."""
 
-    ranges: Sequence[float] | np.ndarray
     angle_min: float
     angle_increment: float
-    range_max: float
     range_min: float = 0.0
+    range_max: float
+    ranges: Sequence[float] | np.ndarray
+
+    @classmethod
+    def from_msg(cls, msg: Any) -> LaserScan:
+        """The scan of a ROS ``sensor_msgs/LaserScan`` message (or anything with its fields)."""
+        return cls(
+            angle_min=msg.angle_min,
+            angle_increment=msg.angle_increment,
+            range_min=msg.range_min,
+            range_max=msg.range_max,
+            ranges=msg.ranges,
+        )
+
+
+def check_finite(
+    name: str, values: Sequence[float] | float, size: int | None = None
+) -> tuple[float, ...]:
+    """``values`` as floats; ``ValueError`` (one line, naming ``name`` and the values) unless
+    they are ``size`` finite numbers: no action is ever computed from a NaN or an infinite
+    input."""
+    try:
+        floats = tuple(float(v) for v in np.asarray(values, np.float64).ravel())
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}={values!r}: must be numbers") from None
+    if size is not None and len(floats) != size:
+        raise ValueError(f"{name}={floats!r}: must be {size} numbers")
+    if not all(math.isfinite(v) for v in floats):
+        shown = floats[0] if np.ndim(values) == 0 else floats
+        raise ValueError(f"{name}={shown!r}: must be finite")
+    return floats
+
+
+def check_scan(scan: LaserScan) -> None:
+    """``ValueError`` (one line, naming the field and its value) for a scan whose angles or
+    range limits make no sense, each of which would read walls as free space or worse:
+    angles must be finite, the increment nonzero and at most a full turn, ``range_min`` finite
+    and non-negative, ``range_max`` above it (+inf allowed: every finite reading counts)."""
+    check_finite("angle_min", scan.angle_min, 1)
+    (increment,) = check_finite("angle_increment", scan.angle_increment, 1)
+    if increment == 0 or abs(increment) > 2 * math.pi:
+        raise ValueError(f"angle_increment={increment!r}: must be nonzero and at most 2*pi in size")
+    (low,) = check_finite("range_min", scan.range_min, 1)
+    if low < 0:
+        raise ValueError(f"range_min={low!r}: must be non-negative")
+    try:
+        high = float(scan.range_max)
+    except (TypeError, ValueError):
+        raise ValueError(f"range_max={scan.range_max!r}: must be a number") from None
+    if not high > low:  # NaN too
+        raise ValueError(f"range_max={high!r}: must be above range_min={low!r}")
 
 
 def yaw_from_quaternion(x: float, y: float, z: float, w: float) -> float:
@@ -85,11 +138,17 @@ def resample_scan(
     from ``scan`` (see the module docstring for readings, mounting and windows); ``inf``
     where nothing is within the scan's range. ``ValueError`` for a beam outside the scan's
     field of view unless ``fill_uncovered`` gives its range."""
-    ranges = np.asarray(scan.ranges, np.float64).ravel()
+    check_scan(scan)
+    check_finite("mount_yaw", mount_yaw)
+    check_finite("beam_width", beam_width)
+    if fill_uncovered is not None and not float(fill_uncovered) >= 0:
+        raise ValueError(f"fill_uncovered={fill_uncovered!r}: must be a range >= 0 (or inf)")
+    try:
+        ranges = np.asarray(scan.ranges, np.float64).ravel()
+    except (TypeError, ValueError):
+        raise ValueError("ranges: must be numbers") from None
     if ranges.size == 0:
-        raise ValueError("scan has no readings")
-    if not math.isfinite(scan.angle_increment) or scan.angle_increment == 0:
-        raise ValueError(f"angle_increment={scan.angle_increment!r}: must be finite and nonzero")
+        raise ValueError("ranges: the scan has no readings")
     reading = np.where(np.isneginf(ranges), 0.0, ranges)  # REP 117: -inf is "too close"
     valid = np.isfinite(reading) & (reading >= scan.range_min) & (reading <= scan.range_max)
     reading = np.where(np.isneginf(ranges) | valid, reading, np.inf)
@@ -162,8 +221,8 @@ class ScanObservation:
         waypoint: Sequence[float] | None = None,
     ) -> np.ndarray:
         """One frame ``float32[frame_size]`` (no stacking)."""
-        x, y, yaw = (float(v) for v in pose)
-        gx, gy = (float(v) for v in goal)
+        x, y, yaw = check_finite("pose", pose, 3)
+        gx, gy = check_finite("goal", goal, 2)
         if self.needs_waypoint and waypoint is None:
             raise ValueError(
                 "this policy reads a waypoint (waypoint_distance_m): pass waypoint=(x, y), "
@@ -183,7 +242,7 @@ class ScanObservation:
         }
         raw["goal_bearing_sin"], raw["goal_bearing_cos"] = bearing(gx - x, gy - y, yaw)
         if waypoint is not None:
-            wx, wy = (float(v) for v in waypoint)
+            wx, wy = check_finite("waypoint", waypoint, 2)
             raw["waypoint_bearing_sin"], raw["waypoint_bearing_cos"] = bearing(wx - x, wy - y, yaw)
             raw["waypoint_distance"] = math.hypot(wx - x, wy - y)
         values = np.empty(len(self.frame_entries), np.float64)

@@ -104,8 +104,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
             config, trainer, params = load_pretrained(args.pretrained, env, overrides)
         else:
-            env_kwargs = {**(config.env_kwargs if env is None else {}), **overrides}
-            config, trainer, params = run_dir.load_run_on(args.run, env or config.env, env_kwargs)
+            on = run_dir.run_env(config, env, overrides)  # the run's sensors go with it
+            config, trainer, params = run_dir.load_run_on(args.run, *on)
     except (UsageError, ValueError, FileNotFoundError) as e:
         return fail(prog, str(e))
     enable_compilation_cache()

@@ -4,17 +4,18 @@
     python -m jaxnav.pretrained add NAME policy.npz --command "python -m jaxnav.train ..." \\
         --command "python -m jaxnav.export RUN --out policy.npz" [--episodes 1000] [--seed 20000]
 
-``add`` copies the npz into the package as NAME.npz, measures its greedy success on fresh
-episodes of its env and writes its manifest entry.
+``add`` checks the npz is a jaxnav policy, measures its greedy success on fresh episodes of its
+env, copies it into the package as NAME.npz and writes its manifest entry; a name already
+shipped is replaced only with ``--force``.
 """
 
 from __future__ import annotations
 
-import shutil
 import sys
 from pathlib import Path
 
 from jaxnav.cli import Parser, UsageError, fail
+from jaxnav.deploy.policy import Policy
 from jaxnav.pretrained import HERE, manifest
 
 
@@ -28,6 +29,7 @@ def main(argv: list[str] | None = None) -> int:
     add.add_argument("--episodes", type=int, default=1000)
     add.add_argument("--seed", type=int, default=20_000, help="seed of the test episodes")
     add.add_argument("--note", default="")
+    add.add_argument("--force", action="store_true", help="replace a policy of that name")
     try:
         args = p.parse_args(argv)
         if args.verb == "add":
@@ -37,7 +39,18 @@ def main(argv: list[str] | None = None) -> int:
                 raise ValueError(f"{args.file}: no such file")
             if not args.command:
                 raise UsageError("--command: give the commands that made the policy")
-    except (UsageError, ValueError) as e:
+            if not 1 <= args.episodes <= 10**7:
+                raise UsageError(f"--episodes {args.episodes}: must be in [1, 10000000]")
+            if args.seed < 0:
+                raise UsageError(f"--seed {args.seed}: must be non-negative")
+            shipped = args.name in manifest() or (HERE / f"{args.name}.npz").exists()
+            if shipped and not args.force:
+                raise UsageError(
+                    f"name {args.name!r}: a policy of that name is shipped; pass --force to "
+                    "replace it"
+                )
+            Policy.load(args.file)  # a damaged or foreign file: one line, before any copy
+    except (UsageError, ValueError, OSError) as e:
         return fail("jaxnav.pretrained", str(e))
     if args.verb != "add":
         for name, e in sorted(manifest().items()):
@@ -49,10 +62,10 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     from jaxnav.pretrained.check import add_entry
 
-    target = HERE / f"{args.name}.npz"
-    if args.file.resolve() != target:
-        shutil.copyfile(args.file, target)
-    entry = add_entry(args.name, target, args.command, args.episodes, args.seed, args.note)
+    try:
+        entry = add_entry(args.name, args.file, args.command, args.episodes, args.seed, args.note)
+    except ValueError as e:  # the policy's env cannot be built here
+        return fail("jaxnav.pretrained", str(e))
     m = entry["measured"]
     print(f"added {args.name}: success {m['success_rate']:.3f} on {m['episodes']} episodes")
     return 0

@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 from pathlib import Path
 from typing import Any
 
 from jaxnav.deploy.policy import Policy
 from jaxnav.evaluate import evaluate_seeds
 from jaxnav.export import to_trainer
-from jaxnav.pretrained import MANIFEST, sha256
+from jaxnav.pretrained import HERE, MANIFEST, sha256
 
 MEASURED = ("success_rate", "collision_rate", "timeout_rate", "mean_steps", "mean_path_ratio")
 
@@ -26,18 +27,25 @@ def measure(policy: Policy, episodes: int, seed: int) -> dict[str, Any]:
 def add_entry(
     name: str, file: Path, commands: list[str], episodes: int, seed: int, note: str = ""
 ) -> dict[str, Any]:
-    """Measure the policy in ``file`` (in the pretrained folder) and write its manifest entry
-    (replacing one of the same name); returns the entry."""
+    """Measure the policy in ``file``, then copy it into the pretrained folder as NAME.npz and
+    write its manifest entry (replacing any of that name); returns the entry. Nothing is
+    copied or written where loading or measuring fails."""
     policy = Policy.load(file)
     meta = policy.metadata
+    measured = measure(policy, episodes, seed)
+    target = HERE / f"{name}.npz"
+    if Path(file).resolve() != target:
+        tmp = target.with_name(f".{target.name}.partial")
+        shutil.copyfile(file, tmp)
+        os.replace(tmp, target)  # whole or not at all
     entry = {
-        "file": file.name,
-        "sha256": sha256(file),
+        "file": target.name,
+        "sha256": sha256(target),
         "env_id": meta["env_id"],
         "env_kwargs": meta["env_kwargs"],
         "network": "-".join(map(str, meta["network"]["hidden_sizes"])),
         "commands": commands,
-        "measured": measure(policy, episodes, seed),
+        "measured": measured,
         "measured_with": f"python -m jaxnav.evaluate --pretrained {name} --episodes {episodes} "
         f"--seed {seed}",
         "note": note,

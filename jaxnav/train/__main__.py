@@ -13,8 +13,10 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import shlex
+import shutil
 import signal
 import sys
+import threading
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -41,6 +43,7 @@ from jaxnav.train import Trainer
 EXIT_DIVERGED = 3
 EXIT_DISK_FULL = runner.EXIT_DISK_FULL
 CHECKPOINT_FLAGS = ("checkpoint_every", "keep_checkpoints")  # kept by --resume unless given
+CHECKPOINT_EVERY = 80_000  # env steps, rounded to the run's logging intervals
 
 HELP = {
     "env": f"environment id ({', '.join(registered_envs())})",
@@ -171,10 +174,10 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--checkpoint-every",
         type=int,
-        default=80_000,
         metavar="STEPS",
         help="env steps between checkpoints of the full training state (rounded to logging "
-        "intervals; one is also saved at the end and on SIGINT/SIGTERM)",
+        "intervals; one is also saved at the end and on SIGINT/SIGTERM) (default: "
+        f"{CHECKPOINT_EVERY})",
     )
     p.add_argument(
         "--keep-checkpoints", type=int, default=2, metavar="K", help="newest checkpoints kept"
@@ -228,9 +231,11 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
 
 def prepare_training(
     argv: list[str],
-) -> tuple[argparse.Namespace, TrainConfig, Path, Path, Trainer]:
-    """``(args, config, out, partial, trainer)``: every check ``main`` makes before it
-    writes or compiles anything; ``UsageError`` or ``ValueError`` (one line) on bad input."""
+) -> tuple[argparse.Namespace, TrainConfig, Path, Path, list[str], Trainer]:
+    """``(args, config, out, partial, notes, trainer)``: every check ``main`` makes before it
+    writes or compiles anything; ``UsageError`` or ``ValueError`` (one line) on bad input.
+    Step counts that are not whole logging intervals are rounded (``config.total_timesteps``
+    up, ``args.checkpoint_every`` to the nearest), each rounding a line of ``notes``."""
     try:
         return _prepare_training(argv)
     except ValueError as e:
@@ -239,49 +244,97 @@ def prepare_training(
 
 def _prepare_training(
     argv: list[str],
-) -> tuple[argparse.Namespace, TrainConfig, Path, Path, Trainer]:
+) -> tuple[argparse.Namespace, TrainConfig, Path, Path, list[str], Trainer]:
     args = parser().parse_args(argv)
     if args.tensorboard:  # asked for but not installed: say so before anything is written
         loggers.require("tensorboardX", "--tensorboard")
     if args.wandb:
         loggers.require("wandb", "--wandb")
     start_hosts(args)
+    notes = []
     if args.resume is not None:
         out, partial, config = resumable_run(args, argv)
     else:
         config = config_from_args(args)
         config.validate()
-        config.check_whole_intervals()
+        config, note = config.whole_intervals()  # the steps trained, as config.json records
+        notes.append(note)
         out = args.out or Path("runs") / f"{config.env}-{time.strftime('%Y%m%d-%H%M%S')}"
         partial = run_dir.partial_dir(out)
         if runner.is_primary():
             run_dir.check_writable(out)
+    asked_every = args.checkpoint_every
+    if args.checkpoint_every is None:
+        args.checkpoint_every = CHECKPOINT_EVERY
     if not 1 <= args.checkpoint_every <= MAX_STEPS:
         raise ValueError(f"--checkpoint-every {args.checkpoint_every}: must be in [1, {MAX_STEPS}]")
     if not 1 <= args.keep_checkpoints <= 1000:
         raise ValueError(f"--keep-checkpoints {args.keep_checkpoints}: must be in [1, 1000]")
-    return args, config, out, partial, Trainer(config)
+    per_log = config.steps_per_log
+    every = max(1, round(args.checkpoint_every / per_log)) * per_log
+    if every != args.checkpoint_every and asked_every is not None:
+        notes.append(
+            f"--checkpoint-every {args.checkpoint_every} rounded to {every} "
+            f"({every // per_log} logging interval{'s' if every > per_log else ''} of "
+            f"{per_log} env steps)"
+        )
+    args.checkpoint_every = every  # the run's checkpointing records the steps it keeps
+    return args, config, out, partial, [n for n in notes if n], Trainer(config)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Train as the flags in ``argv`` (default: the command line's) say; the exit code."""
     locks: list[run_dir.RunLock] = []
+    run: list[tuple[Path, bool]] = []  # the run's out once known, and whether it is new
+    main_thread = threading.current_thread() is threading.main_thread()
+    if main_thread:
+        # Ctrl-C before training (the command's start's one-line exit is jaxnav's) is
+        # answered below; training's own handler takes over around the training loop
+        previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
-        return _main(argv, locks)
+        return _main(argv, locks, run)
+    except KeyboardInterrupt:
+        for lock in locks:
+            lock.release()
+        out, new = run[0] if run else (None, False)
+        return stopped_early(out, new and bool(locks))
     finally:  # the OS drops it when the process ends; a caller in-process may go on
         for lock in locks:
             lock.release()
+        if main_thread and previous is not None:  # None: a handler not set from Python
+            signal.signal(signal.SIGINT, previous)
 
 
-def _main(argv: Sequence[str] | None, locks: list[run_dir.RunLock]) -> int:
-    """``main``, holding the run's lock (put in ``locks``) from before anything is written."""
+def stopped_early(out: Path | None, created: bool) -> int:
+    """Report a SIGINT before training began in one line, exit code 130: how to continue a
+    run whose config.json is written; else a run directory this process ``created`` holds
+    nothing and goes."""
+    partial = None if out is None else run_dir.partial_dir(out)
+    if partial is not None and (partial / "config.json").is_file():
+        how = f"continue with: python -m jaxnav.train --resume {shlex.quote(str(out))}"
+    else:
+        if created and partial is not None:
+            shutil.rmtree(partial, ignore_errors=True)  # only its lock file: nothing to keep
+        how = "nothing was trained or written"
+    print(f"jaxnav.train: stopped by SIGINT before training began; {how}", file=sys.stderr)
+    return 128 + signal.SIGINT
+
+
+def _main(
+    argv: Sequence[str] | None, locks: list[run_dir.RunLock], run: list[tuple[Path, bool]]
+) -> int:
+    """``main``, holding the run's lock (put in ``locks``) from before anything is written;
+    ``(out, new run)`` in ``run`` once known."""
     prog = "jaxnav.train"
     t_start = time.perf_counter()
     argv = sys.argv[1:] if argv is None else list(argv)
     try:
-        args, config, out, partial, trainer = prepare_training(argv)
+        args, config, out, partial, notes, trainer = prepare_training(argv)
     except (UsageError, ValueError) as e:
         return fail(prog, str(e))
+    run.append((out, args.resume is None))
+    for note in notes:
+        runner.print_primary(note)
     resume = f"python -m jaxnav.train --resume {shlex.quote(str(out))}"
     try:  # held until the process ends: the OS drops an flock with its owner
         if runner.is_primary():
@@ -299,7 +352,7 @@ def _main(argv: Sequence[str] | None, locks: list[run_dir.RunLock]) -> int:
 
     enable_compilation_cache()
     steps_per_log = config.steps_per_log
-    every = max(1, round(args.checkpoint_every / steps_per_log))
+    every = args.checkpoint_every // steps_per_log  # whole intervals (prepare_training)
     saving = runner.Saving(partial, every, args.keep_checkpoints)
     checkpointing = {k: getattr(args, k) for k in CHECKPOINT_FLAGS}
     runner.open_run(trainer, partial, checkpointing if args.resume is None else None)
@@ -381,10 +434,12 @@ def resumable_run(args: argparse.Namespace, argv: list[str]) -> tuple[Path, Path
     for name in CHECKPOINT_FLAGS:
         setattr(args, name, given.get(name, saved_flags.get(name, getattr(args, name))))
     asked = config_from_args(argparse.Namespace(**{**vars(args), **_as_args(saved), **given}))
+    # a run records the steps it trains: the asked count, rounded up as at the start, matches
+    asked, whole = asked.whole_intervals()[0], saved.whole_intervals()[0]
     differ = [
         f.name
         for f in dataclasses.fields(TrainConfig)
-        if getattr(asked, f.name) != getattr(saved, f.name)
+        if getattr(asked, f.name) != getattr(whole, f.name)
     ]
     if differ:
         was = ", ".join(f"{n}={getattr(saved, n)!r}" for n in differ)
