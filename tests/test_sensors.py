@@ -281,3 +281,31 @@ def test_the_drive_from_scans_example_agrees_with_the_simulator(tmp_path, capsys
     out = capsys.readouterr().out
     assert "recorded 2 episodes" in out and "(100.0%) the simulator's" in out
     assert example.drive(npz, log, quiet=True) == 1.0
+
+
+def test_a_map_free_policy_reads_its_previous_action_and_radius_as_the_env_does():
+    """RobotJaxNav-v0's observation (previous action, radius, goal read to 16 m): scans, poses,
+    ``acted`` and ``radius=`` reproduce it over whole episodes; forgetting either is refused."""
+    kwargs = {"num_layouts": 8, "radius_range": (0.1, 0.25)}
+    trainer = Trainer(TrainConfig.for_env("RobotJaxNav-v0", env_kwargs=kwargs, hidden_sizes=(8,)))
+    env, params, meta = trainer.env, trainer.env_params, export.policy_metadata(trainer)
+    with pytest.raises(ValueError, match=r"reads the robot's radius \(robot_radius\)"):
+        ScanObservation(meta)
+    reset, step_env, _ = jitted(env)
+    for seed in range(2):
+        key = jax.random.key(seed)
+        obs, state = reset(key, params)
+        observe = ScanObservation(meta, radius=float(state.radius))
+        for k in jax.random.split(key, 12):
+            scan = synthesize(env, params, state, 4 * 32 * 6, -math.pi, range_max=12.0)
+            got = observe(scan, np.asarray(state.pose), np.asarray(state.goal))
+            np.testing.assert_allclose(got, np.asarray(obs), atol=2e-6, rtol=0)
+            with pytest.raises(ValueError, match=r"call acted\(action\)"):
+                observe(scan, np.asarray(state.pose), np.asarray(state.goal))
+            action = int(jax.random.randint(k, (), 0, env.num_actions))
+            observe.acted(action)
+            obs, state, _, done, _ = step_env(k, state, action, params)
+            if bool(done):
+                break
+    with pytest.raises(ValueError, match=r"action=7: must be an index in \[0, 4\)"):
+        observe.acted(7)

@@ -189,8 +189,10 @@ class ScanObservation:
         mount_yaw: float = 0.0,
         beam_width: float = 0.0,
         fill_uncovered: float | None = None,
+        radius: float | None = None,
     ):
-        """``metadata``: an exported policy's (``Policy.metadata``, or the ``Policy``)."""
+        """``metadata``: an exported policy's (``Policy.metadata``, or the ``Policy``);
+        ``radius``: the robot's, in metres, for a policy that reads it (``robot_radius``)."""
         metadata = getattr(metadata, "metadata", metadata)
         sensors = metadata.get("sensors")
         if sensors is None:
@@ -204,14 +206,42 @@ class ScanObservation:
         self.beam_angles = np.asarray(sensors["beam_angles_rad"], np.float64)
         self.laser_range = float(sensors["laser_range_m"])
         self.needs_waypoint = any(e["name"].startswith("waypoint") for e in self.frame_entries)
+        names = [e["name"] for e in self.frame_entries]
+        # a map-free policy's own odometry: its previous action (one-hot) and its radius
+        self.action_entries = [n for n in names if n.startswith("last_action_")]
+        self.radius = None
+        if "robot_radius" in names:
+            if radius is None:
+                raise ValueError(
+                    "this policy reads the robot's radius (robot_radius): pass radius=<metres>"
+                )
+            (self.radius,) = check_finite("radius", [radius], 1)
+            if self.radius <= 0:
+                raise ValueError(f"radius={radius!r}: must be a positive number of metres")
+        self._last_action: int | None = None
+        self._acted = True  # no action is owed before the first observation
         self.mount_yaw = float(mount_yaw)
         self.beam_width = float(beam_width)
         self.fill_uncovered = fill_uncovered
         self._stack: list[np.ndarray] = []
 
     def reset(self) -> None:
-        """Forget the stacked frames: the next call fills every frame with its own."""
+        """Forget the stacked frames (the next call fills every frame with its own) and the
+        previous action."""
         self._stack = []
+        self._last_action = None
+        self._acted = True
+
+    def acted(self, action: int) -> None:
+        """Record the action the robot executed after the last observation: a policy that
+        reads its previous action (``last_action_*``) needs it before the next one."""
+        if isinstance(action, bool) or not isinstance(action, (int, np.integer)):
+            raise ValueError(f"action={action!r}: must be an action index")
+        if self.action_entries and not 0 <= action < len(self.action_entries):
+            raise ValueError(
+                f"action={action!r}: must be an index in [0, {len(self.action_entries)})"
+            )
+        self._last_action, self._acted = int(action), True
 
     def frame(
         self,
@@ -241,6 +271,9 @@ class ScanObservation:
             "heading_cos": math.cos(yaw),
         }
         raw["goal_bearing_sin"], raw["goal_bearing_cos"] = bearing(gx - x, gy - y, yaw)
+        for i, name in enumerate(self.action_entries):
+            raw[name] = float(self._last_action == i)
+        raw["robot_radius"] = self.radius
         if waypoint is not None:
             wx, wy = check_finite("waypoint", waypoint, 2)
             raw["waypoint_bearing_sin"], raw["waypoint_bearing_cos"] = bearing(wx - x, wy - y, yaw)
@@ -265,6 +298,12 @@ class ScanObservation:
     ) -> np.ndarray:
         """The observation ``float32[size]``: this frame after the last ``frames - 1`` ones,
         oldest first (right after ``reset()``, this frame in every slot)."""
+        if self.action_entries and not self._acted:
+            raise ValueError(
+                "this policy reads its previous action (last_action_*): call acted(action) "
+                "with the action executed since the last observation"
+            )
         f = self.frame(scan, pose, goal, waypoint)
+        self._acted = not self.action_entries
         self._stack = [f] * self.frames if not self._stack else [*self._stack[1:], f]
         return np.concatenate(self._stack)
