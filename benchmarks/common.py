@@ -21,6 +21,7 @@ def machine_info() -> dict[str, Any]:
         **host_info(),
         "jax_version": jax.__version__,
         "backend": jax.default_backend(),
+        "device_kind": jax.devices()[0].device_kind,  # e.g. "NVIDIA H100 80GB HBM3"
         "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
         "loadavg_1m_at_start": os.getloadavg()[0] if hasattr(os, "getloadavg") else None,
         "gymnax_version": package_version("gymnax"),
@@ -42,7 +43,9 @@ def machine_text(machine: dict[str, Any]) -> str:
         if not features["avx512f"]:
             details.append("no AVX-512")
     cores = f"{machine['cpu_count']} cores" + (f"; {', '.join(details)}" if details else "")
-    return f"{machine['backend']} ({cores})"
+    kind = machine.get("device_kind")
+    backend = f"{machine['backend']} {kind}" if kind and machine["backend"] != "cpu" else ""
+    return f"{backend or machine['backend']} ({cores})"
 
 
 def write_results(out: Path, result: dict[str, Any], markdown: str) -> None:
