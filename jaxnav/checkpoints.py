@@ -218,18 +218,24 @@ class Checkpoints:
         if step is None:
             raise FileNotFoundError(f"{self.directory}: no checkpoint")
         try:
-            arrays, meta = self._restore(step, like_state, like_metrics)
+            arrays, meta, abstract = self._read(step, like_state, like_metrics)
             upgrade = None
-        except ValueError:  # orbax's, for another tree structure
+        except ValueError as error:  # orbax's, for another tree structure
             if legacy is None:
                 raise
             like_state, upgrade = legacy
-            arrays, meta = self._restore(step, like_state, like_metrics)
+            try:
+                arrays, meta, abstract = self._read(step, like_state, like_metrics)
+            except ValueError:
+                raise error from None  # in neither layout: what differs from today's
+        _check_like(arrays, abstract)  # orbax restores what was saved, whatever the target
         state = _from_disk(arrays["state"], like_state)
         metrics = {k: np.array(arrays["metrics"][k]) for k in like_metrics}  # keep the order
         return step, state if upgrade is None else upgrade(state), metrics, meta
 
-    def _restore(self, step: int, like_state: Any, like_metrics: dict[str, Any]) -> tuple:
+    def _read(self, step: int, like_state: Any, like_metrics: dict[str, Any]) -> tuple:
+        """``(arrays, meta, abstract)`` of checkpoint ``step`` restored in the structure of
+        ``like_state`` and ``like_metrics`` (``abstract``: their shapes and dtypes)."""
         abstract = jax.tree.map(
             lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype),
             {"state": _disk_like(like_state), "metrics": like_metrics},
@@ -240,9 +246,7 @@ class Checkpoints:
                 arrays=ocp.args.StandardRestore(abstract), meta=ocp.args.JsonRestore()
             ),
         )
-        arrays = restored["arrays"]
-        _check_like(arrays, abstract)  # orbax restores what was saved, whatever the target
-        return arrays, restored["meta"]
+        return restored["arrays"], restored["meta"], abstract
 
     def close(self) -> None:
         self.manager.close()

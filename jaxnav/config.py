@@ -133,7 +133,9 @@ class TrainConfig:
 
     @property
     def algorithm(self) -> type[Algorithm]:
-        """The class of ``algo`` (``jaxnav.algos.ALGOS``)."""
+        """The class of ``algo`` (``jaxnav.algos.ALGOS``); ``ValueError`` for another name."""
+        if self.algo not in ALGORITHMS:
+            raise ValueError(f"algo={self.algo!r}: must be one of {', '.join(ALGORITHMS)}")
         return ALGORITHMS[self.algo]
 
     @property

@@ -119,6 +119,9 @@ def test_a_checkpoint_of_the_former_state_layout_restores_as_saved(name, tmp_pat
     with pytest.raises(ValueError):  # not in today's layout
         restoring.restore(like, metrics)
     legacy = trainer.legacy_checkpoint_layout(like)
+    other = jax.tree.map(lambda x: jax.ShapeDtypeStruct((3, *x.shape[1:]), x.dtype), like)
+    with pytest.raises(ValueError, match=r"was saved as \w+\[2.*this run expects \w+\[3"):
+        restoring.restore(other, metrics, legacy=trainer.legacy_checkpoint_layout(other))
     step, restored, restored_metrics, _ = restoring.restore(like, metrics, legacy=legacy)
     restoring.close()
     assert step == 1 and type(restored) is type(state)
