@@ -28,7 +28,8 @@ SHARED = ("train/__init__.py", "config.py", "sharding.py", "runner.py", "checkpo
 
 def algorithm_branches(path: Path) -> list[str]:
     """Where the module at ``path`` names an algorithm: a string constant that is a
-    registered name (the ``algo`` field's default aside) or a comparison with an ``algo``."""
+    registered name (the ``algo`` field's default aside) or a comparison of an ``algo`` with
+    string constants (``algo == "x"``, ``algo in ("x", "y")``)."""
     tree = ast.parse(path.read_text())
     default = {
         id(node.value)
@@ -41,17 +42,22 @@ def algorithm_branches(path: Path) -> list[str]:
             found.append(f"{path.name}:{node.lineno} {node.value!r}")
         if isinstance(node, ast.Compare):
             sides = [node.left, *node.comparators]
-            if any(getattr(side, "attr", getattr(side, "id", None)) == "algo" for side in sides):
-                found.append(f"{path.name}:{node.lineno} compares algo")
+            names = [getattr(side, "attr", getattr(side, "id", None)) for side in sides]
+            constants = [n for side in sides for n in ast.walk(side) if isinstance(n, ast.Constant)]
+            if "algo" in names and any(isinstance(c.value, str) for c in constants):
+                found.append(f"{path.name}:{node.lineno} compares algo with a name")
     return found
 
 
-def test_the_shared_modules_name_no_algorithm():
+def test_the_shared_modules_name_no_algorithm(tmp_path):
     """Adding an algorithm is its module, presets and tests: the loop, config, sharding,
     runner and checkpoints branch on none (the registry is the one place that names them)."""
     assert {p: algorithm_branches(PACKAGE / p) for p in SHARED} == {p: [] for p in SHARED}
     # the check sees a branch where there is one
     assert algorithm_branches(PACKAGE / "presets.py")
+    branch = tmp_path / "branch.py"
+    branch.write_text('def f(c):\n    return 1 if c.algo in ("a", "b") else 2\n')
+    assert algorithm_branches(branch) == ["branch.py:2 compares algo with a name"]
 
 
 @pytest.mark.parametrize("name", sorted(ALGOS))
