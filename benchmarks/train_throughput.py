@@ -155,10 +155,11 @@ def filled_state(trainer: Trainer, key: jax.Array) -> TrainState:
     def fill(key: jax.Array) -> TrainState:
         k_init, k_fill = jax.random.split(key)
         ts = trainer.init(k_init)
-        init = (ts.buffer, ts.env_state, ts.obs)
-        keys = jax.random.split(k_fill, ts.buffer.capacity)
+        init = (ts.algo_state.buffer, ts.env_state, ts.obs)
+        keys = jax.random.split(k_fill, ts.algo_state.buffer.capacity)
         (buf, env_state, obs), _ = jax.lax.scan(body, init, keys)
-        return ts.replace(buffer=buf, env_state=env_state, obs=obs)
+        algo_state = ts.algo_state.replace(buffer=buf)
+        return ts.replace(algo_state=algo_state, env_state=env_state, obs=obs)
 
     return jax.block_until_ready(fill(key))
 
@@ -170,7 +171,7 @@ def fixed_minibatch(trainer: Trainer, ts: TrainState, key: jax.Array) -> Any:
     c = trainer.config
     if c.algo == "dqn":
         sample = jax.jit(dqn.buffer_sample, static_argnums=(2, 3))
-        return sample(ts.buffer, key, c.batch_size, c.n_step, ts.hparams.gamma)
+        return sample(ts.algo_state.buffer, key, c.batch_size, c.n_step, ts.hparams.gamma)
     k_reset, k_act, k_target = jax.random.split(key, 3)
     b = c.minibatch_size
     reset = jax.jit(jax.vmap(trainer.env.reset, in_axes=(0, None)))
@@ -303,7 +304,8 @@ def measure(
             lambda ts, log, trainer=trainer: trainer.run(ts, log, 1), train_ts, logs[0]
         )
         programs[f"{algo} train"] = Program(compiled, train_ts, logs, compile_s)
-        update_ts = jax.tree.map(jnp.copy, ts.replace(buffer=None))  # reads no buffer
+        algo_state = ts.algo_state and ts.algo_state.replace(buffer=None)  # reads no buffer
+        update_ts = jax.tree.map(jnp.copy, ts.replace(algo_state=algo_state))
         num_updates = iterations * c.updates_per_learning_iteration
         compiled, compile_s = compile_donating(
             update_program(trainer, num_updates), update_ts, batch

@@ -1,7 +1,7 @@
-"""Checkpoints of an unfinished training run: every seed's full ``TrainState`` (params, target,
-optimizer state, replay buffer, env states, RNG keys, hyperparameters, divergence flags) and
-the metrics of the logging intervals done so far, so a resumed run continues bitwise where the
-saved one stopped.
+"""Checkpoints of an unfinished training run: every seed's full ``TrainState`` (params,
+optimizer state, the algorithm's own such as a target network and replay buffer, env states,
+RNG keys, hyperparameters, divergence flags) and the metrics of the logging intervals done
+so far, so a resumed run continues bitwise where the saved one stopped.
 
 One orbax ``CheckpointManager`` directory; the step number is the count of logging intervals
 done. Orbax writes each checkpoint to a temporary directory and renames it when complete, so a
@@ -203,14 +203,39 @@ class Checkpoints:
         return None
 
     def restore(
-        self, like_state: Any, like_metrics: dict[str, Any], step: int | None = None
+        self,
+        like_state: Any,
+        like_metrics: dict[str, Any],
+        step: int | None = None,
+        legacy: tuple[Any, Callable[[Any], Any]] | None = None,
     ) -> tuple[int, Any, dict, dict]:
         """``(logs_done, state, metrics, meta)`` of checkpoint ``step`` (default: the newest);
         the ``like_*`` arguments give structure, shapes and dtypes (abstract values are
-        fine)."""
+        fine). ``legacy``: ``(like, upgrade)`` for a state saved in an earlier structure,
+        tried where the checkpoint's is not ``like_state``'s; ``upgrade`` turns it into one
+        like ``like_state``."""
         step = self.latest() if step is None else step
         if step is None:
             raise FileNotFoundError(f"{self.directory}: no checkpoint")
+        try:
+            arrays, meta, abstract = self._read(step, like_state, like_metrics)
+            upgrade = None
+        except ValueError as error:  # orbax's, for another tree structure
+            if legacy is None:
+                raise
+            like_state, upgrade = legacy
+            try:
+                arrays, meta, abstract = self._read(step, like_state, like_metrics)
+            except ValueError:
+                raise error from None  # in neither layout: what differs from today's
+        _check_like(arrays, abstract)  # orbax restores what was saved, whatever the target
+        state = _from_disk(arrays["state"], like_state)
+        metrics = {k: np.array(arrays["metrics"][k]) for k in like_metrics}  # keep the order
+        return step, state if upgrade is None else upgrade(state), metrics, meta
+
+    def _read(self, step: int, like_state: Any, like_metrics: dict[str, Any]) -> tuple:
+        """``(arrays, meta, abstract)`` of checkpoint ``step`` restored in the structure of
+        ``like_state`` and ``like_metrics`` (``abstract``: their shapes and dtypes)."""
         abstract = jax.tree.map(
             lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype),
             {"state": _disk_like(like_state), "metrics": like_metrics},
@@ -221,11 +246,7 @@ class Checkpoints:
                 arrays=ocp.args.StandardRestore(abstract), meta=ocp.args.JsonRestore()
             ),
         )
-        arrays = restored["arrays"]
-        _check_like(arrays, abstract)  # orbax restores what was saved, whatever the target
-        state = _from_disk(arrays["state"], like_state)
-        metrics = {k: np.array(arrays["metrics"][k]) for k in like_metrics}  # keep the order
-        return step, state, metrics, restored["meta"]
+        return restored["arrays"], restored["meta"], abstract
 
     def close(self) -> None:
         self.manager.close()

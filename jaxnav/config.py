@@ -9,15 +9,15 @@ from typing import Any
 import jax
 
 from jaxnav.agents.dqn import COMPUTE_DTYPES
-from jaxnav.presets import PRESETS, default_algo, train_defaults
+from jaxnav.algos import ALGOS as ALGORITHMS
+from jaxnav.algos.base import MAX_UPDATES, Algorithm
+from jaxnav.presets import default_algo, train_defaults
 from jaxnav.registration import env_config
 from jaxnav.sharding import mesh_shape
 
 # step counters are int32 inside the compiled loop; keep a margin below 2^31
 MAX_STEPS = 2_000_000_000
-# DQN gradient steps per iteration, at most (a scan of them is compiled into every iteration)
-MAX_UPDATES = 65536
-ALGOS = tuple(PRESETS)  # "dqn", "pqn": an algorithm is what has presets
+ALGOS = tuple(ALGORITHMS)  # the names ``algo`` takes
 
 
 @dataclasses.dataclass(frozen=True)
@@ -128,23 +128,27 @@ class TrainConfig:
         return dataclasses.replace(self, total_timesteps=trained), note
 
     @property
+    def algorithm(self) -> type[Algorithm]:
+        """The class of ``algo`` (``jaxnav.algos.ALGOS``); ``ValueError`` for another name."""
+        if self.algo not in ALGORITHMS:
+            raise ValueError(f"algo={self.algo!r}: must be one of {', '.join(ALGORITHMS)}")
+        return ALGORITHMS[self.algo]
+
+    @property
     def first_learning_iteration(self) -> int:
-        """The first iteration whose env-step count reaches ``learning_starts``, and at least
-        the ``n_step``-th, when replay holds an n-step transition (PQN learns from its first
-        rollout)."""
-        if self.algo == "pqn":
-            return 0
-        return max(-(-self.learning_starts // self.num_envs), self.n_step)
+        """The first iteration that takes gradient steps (the DQN's reaches
+        ``learning_starts`` env steps and is at least the ``n_step``-th, when replay holds an
+        n-step transition; PQN learns from its first rollout)."""
+        return self.algorithm.first_learning_iteration(self)
 
     @property
     def learning_start_steps(self) -> int:
-        """Env steps before the first update: ``learning_starts`` rounded up to whole
-        iterations, and to at least ``n_step`` of them for the DQN."""
+        """Env steps before the first update (``first_learning_iteration``'s)."""
         return self.first_learning_iteration * self.steps_per_iteration
 
     @property
     def updates_per_iteration(self) -> int:
-        """DQN: gradient steps per vectorized env step, ``replay_ratio * num_envs /
+        """Replay: gradient steps per vectorized env step, ``replay_ratio * num_envs /
         batch_size``; ``ValueError`` (one line) where that is not a whole number >= 1."""
         u = self.replay_ratio * self.num_envs / self.batch_size
         whole = round(u)
@@ -184,16 +188,12 @@ class TrainConfig:
     @property
     def updates_per_learning_iteration(self) -> int:
         """Gradient steps of an iteration that learns."""
-        if self.algo == "pqn":
-            return self.num_epochs * self.num_minibatches
-        return self.updates_per_iteration
+        return self.algorithm.updates_per_learning_iteration(self)
 
     @property
     def minibatch_size(self) -> int:
         """Transitions per gradient step."""
-        if self.algo == "pqn":
-            return self.steps_per_iteration // self.num_minibatches
-        return self.batch_size
+        return self.algorithm.minibatch_size(self)
 
     @property
     def buffer_rows(self) -> int:
@@ -270,7 +270,7 @@ class TrainConfig:
         env_shards = mesh_shape(self.num_seeds, self.devices)[1]
         for name in ("num_envs", "minibatch_size"):
             if getattr(self, name) % env_shards:
-                shown = "batch_size" if name == "minibatch_size" and self.algo == "dqn" else name
+                shown = self.algorithm.minibatch_field if name == "minibatch_size" else name
                 raise ValueError(
                     f"{shown}={getattr(self, name)} is not a multiple of the {env_shards} "
                     f"devices each seed's envs are split over (devices={self.devices}, "
@@ -281,46 +281,7 @@ class TrainConfig:
                 f"total_timesteps={self.total_timesteps}: rounded up to whole logging intervals "
                 f"it exceeds {MAX_STEPS} steps"
             )
-        if self.algo == "pqn":
-            self._validate_pqn()
-        else:
-            self._validate_dqn()
-
-    def _validate_pqn(self) -> None:
-        if self.steps_per_iteration % self.num_minibatches:
-            raise ValueError(
-                f"num_minibatches={self.num_minibatches} does not divide the "
-                f"num_envs * rollout_length = {self.steps_per_iteration} transitions of a rollout"
-            )
-
-    def _validate_dqn(self) -> None:
-        if self.rollout_length != 1:
-            raise ValueError(
-                f"rollout_length={self.rollout_length}: algo=dqn steps every env once per "
-                "iteration (use replay_ratio for the gradient steps per env step)"
-            )
-        if self.batch_size > self.buffer_size:
-            raise ValueError(
-                f"batch_size={self.batch_size} is larger than buffer_size={self.buffer_size}"
-            )
-        if self.buffer_size < self.num_envs * self.n_step:
-            raise ValueError(
-                f"buffer_size={self.buffer_size} must hold n_step={self.n_step} steps of "
-                f"num_envs={self.num_envs} envs (>= {self.num_envs * self.n_step})"
-            )
-        if self.learning_start_steps >= self.total_timesteps:
-            raise ValueError(
-                f"learning_starts={self.learning_starts} with num_envs={self.num_envs} and "
-                f"n_step={self.n_step} waits {self.learning_start_steps} env steps, not below "
-                f"total_timesteps={self.total_timesteps}: no update would ever run"
-            )
-        updates = self.updates_per_iteration  # ValueError unless a whole number >= 1
-        if updates > MAX_UPDATES:
-            raise ValueError(
-                f"replay_ratio={self.replay_ratio!r} with num_envs={self.num_envs} and "
-                f"batch_size={self.batch_size} gives {updates} gradient steps per iteration, "
-                f"more than {MAX_UPDATES}; use a larger batch_size or a smaller replay_ratio"
-            )
+        self.algorithm.validate(self)
 
 
 def _divisors(n: int) -> list[int]:

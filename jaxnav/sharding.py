@@ -38,25 +38,18 @@ def make_mesh(num_seeds: int, devices: int) -> Mesh:
     return Mesh(grid, (SEEDS, ENVS))
 
 
-def state_specs(state: Any) -> Any:
-    """``PartitionSpec``s of a seed-batched ``TrainState`` (arrays or abstract values).
+def state_specs(state: Any, algo_specs: Any) -> Any:
+    """``PartitionSpec``s of a seed-batched ``TrainState`` (arrays or abstract values), given
+    ``algo_specs``, those of its ``algo_state`` (the algorithm's: e.g. a replay buffer's
+    arrays are [seed, time, env, ...]).
 
-    Per-env fields have the env axis after the seed axis; replay arrays are [seed, time, env,
-    ...]; everything else (parameters, optimizer, keys, counters) is per seed only.
+    Per-env fields have the env axis after the seed axis; everything else (parameters,
+    optimizer, keys, counters) is per seed only.
     """
     per_env = P(SEEDS, ENVS)
-    replay = P(SEEDS, None, ENVS)
-    per_seed = P(SEEDS)
-    buffer = state.buffer  # None without replay (PQN)
-    buffer_specs = buffer and buffer.replace(
-        **{
-            name: replay if getattr(buffer, name).ndim >= 3 else per_seed
-            for name in buffer.__dataclass_fields__
-        }
-    )
-    specs = jax.tree.map(lambda _: per_seed, state)
+    specs = jax.tree.map(lambda _: P(SEEDS), state)
     return specs.replace(
-        buffer=buffer_specs,
+        algo_state=algo_specs,
         env_state=jax.tree.map(lambda _: per_env, state.env_state),
         obs=per_env,
         episode_return=per_env,

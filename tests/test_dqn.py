@@ -16,6 +16,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from jaxnav.agents import dqn
+from jaxnav.algos import backend
 from jaxnav.train import Trainer
 
 NUM_ACTIONS = 4
@@ -401,18 +402,19 @@ def test_target_updates_exactly_when_env_steps_cross_the_period(stepwise_trainer
     period = c.target_update_period
     updated_at = []
     for it in range(c.iterations):
-        before, online_before = ts.target_params, ts.params
+        before, online_before = ts.algo_state.target_params, ts.params
         ts, metrics = run_one(ts, it)
+        target = ts.algo_state.target_params
         assert int(metrics["env_steps"][0]) == (it + 1) * c.num_envs
         learning = it * c.num_envs >= c.learning_starts
         if learning:
             assert not leaves_equal(ts.params, online_before)  # a gradient step happened
         else:
             assert leaves_equal(ts.params, online_before)
-        if leaves_equal(ts.target_params, ts.params) and not leaves_equal(ts.target_params, before):
+        if leaves_equal(target, ts.params) and not leaves_equal(target, before):
             updated_at.append(it)
         else:
-            assert leaves_equal(ts.target_params, before)  # otherwise untouched
+            assert leaves_equal(target, before)  # otherwise untouched
     # iteration it takes env steps from it*N to (it+1)*N: a copy when a multiple of the
     # period lies in (it*N, (it+1)*N], once learning has started
     expected = [
@@ -447,18 +449,19 @@ def test_target_updates_at_the_gradient_step_whose_env_steps_cross_the_period(
     parameters exactly when 4i + 4 is a multiple of 3, and otherwise those of an earlier step
     (neither the iteration's final parameters nor the previous target). Both forms of the
     update: the CPU's cond and the GPU's select."""
-    monkeypatch.setattr(Trainer, "target_update_select", staticmethod(lambda: select))
+    monkeypatch.setattr(backend, "target_update_select", lambda: select)
     c = dataclasses.replace(
         tiny_config, batch_size=2, replay_ratio=2.0, target_update_period=3,
         total_timesteps=10 * tiny_config.num_envs,
     )  # fmt: skip
     assert c.updates_per_iteration == 4 and c.num_envs == 4 and c.learning_start_steps == 8
     for it, before, ts in iteration_by_iteration(c):
+        target, target_before = ts.algo_state.target_params, before.algo_state.target_params
         if it < 2:  # no learning yet
-            assert leaves_equal(ts.target_params, before.target_params)
+            assert leaves_equal(target, target_before)
             continue
-        assert not leaves_equal(ts.target_params, before.target_params)
-        assert leaves_equal(ts.target_params, ts.params) == ((4 * it + 4) % 3 == 0), it
+        assert not leaves_equal(target, target_before)
+        assert leaves_equal(target, ts.params) == ((4 * it + 4) % 3 == 0), it
 
 
 @pytest.mark.parametrize(
@@ -497,7 +500,7 @@ def test_same_seed_is_bitwise_reproducible_and_seeds_differ(train_one, seed0_run
     ts0, metrics0 = seed0_run
     ts, metrics = train_one(jax.random.key(0))
     assert leaves_equal(ts.params, ts0.params)
-    assert leaves_equal(ts.target_params, ts0.target_params)
+    assert leaves_equal(ts.algo_state.target_params, ts0.algo_state.target_params)
     assert leaves_equal(metrics, metrics0)
     chex.assert_tree_all_finite((ts0.params, metrics0))
     assert int(metrics0["episodes"].sum()) > 0  # the metrics describe real episodes
@@ -514,8 +517,9 @@ def test_index_observation_trains_exactly_as_onehot(tiny_config, seed0_run):
     kwargs = {**tiny_config.env_kwargs, "obs_mode": "onehot"}
     onehot = Trainer(dataclasses.replace(tiny_config, env_kwargs=kwargs))
     ts, metrics = jax.jit(onehot.train)(jax.random.key(0))
-    chex.assert_shape(seed0_run[0].buffer.obs, (*ts.buffer.obs.shape[:2], 10))
-    assert ts.buffer.obs.shape[-1] == 4 * 5 + 4 + 2
+    index_obs, onehot_obs = seed0_run[0].algo_state.buffer.obs, ts.algo_state.buffer.obs
+    chex.assert_shape(index_obs, (*onehot_obs.shape[:2], 10))
+    assert onehot_obs.shape[-1] == 4 * 5 + 4 + 2
     assert leaves_equal(ts.params, seed0_run[0].params)
     assert leaves_equal(metrics, seed0_run[1])
 
@@ -544,7 +548,7 @@ def test_vmap_over_seeds_and_hparams(tiny_trainer, train_one, train_many, seed0_
 
 @pytest.mark.parametrize("updates", [3, 4])
 def test_updates_unrolled_two_a_trip_train_exactly_as_rolled(monkeypatch, updates):
-    """On a GPU the DQN's gradient steps run two a loop trip (``Trainer.updates_unroll``),
+    """On a GPU the DQN's gradient steps run two a loop trip (``backend.updates_unroll``),
     also where their count is odd; on a CPU one. The same run either way: the same samples,
     target updates and episodes, and parameters equal up to float rounding (XLA may fuse the
     unrolled body's arithmetic otherwise)."""
@@ -554,9 +558,7 @@ def test_updates_unrolled_two_a_trip_train_exactly_as_rolled(monkeypatch, update
     assert config.updates_per_iteration == updates
     runs = []
     for unroll in (1, 2):
-        monkeypatch.setattr(
-            Trainer, "updates_unroll", staticmethod(lambda algo, steps, k=unroll: min(steps, k))
-        )
+        monkeypatch.setattr(backend, "updates_unroll", lambda steps, _, k=unroll: min(steps, k))
         runs.append(jax.jit(Trainer(config).train)(jax.random.key(5)))
     rolled, unrolled = (jax.tree.leaves(run) for run in runs)
     for a, b in zip(rolled, unrolled, strict=True):

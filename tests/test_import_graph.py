@@ -28,6 +28,7 @@ LAYERS: list[list[str]] = [
     ["jaxnav.pretrained"],
     ["jaxnav.environment", "jaxnav.checkpoints"],
     ["jaxnav.envs", "jaxnav.agents", "jaxnav.wrappers"],
+    ["jaxnav.algos"],  # each algorithm behind one interface; config validates with them
     ["jaxnav.registration"],
     ["jaxnav", "jaxnav.presets"],
     ["jaxnav.config"],

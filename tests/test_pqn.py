@@ -176,7 +176,8 @@ def next_values_of(pqn_trainer):
             obs, zeros.astype(jnp.int32), zeros, next_obs, terminated, done, q_max(params, obs)
         )
         acted = q_max(params, following)
-        return trainer.next_values(params, tr, last_obs), q_max(params, next_obs), acted
+        values = trainer.algorithm.next_values(params, tr, last_obs)
+        return values, q_max(params, next_obs), acted
 
     params = jax.jit(trainer.init)(jax.random.key(0)).params
     return lambda done, terminated: run(params, jnp.asarray(done), jnp.asarray(terminated))
@@ -263,7 +264,7 @@ def pqn_train(pqn_trainer):
 
 def test_pqn_allocates_no_replay_memory_and_no_target_network(pqn_trainer):
     state = jax.eval_shape(pqn_trainer.init, jax.random.key(0))
-    assert state.buffer is None and state.target_params is None
+    assert state.algo_state is None  # nothing of its own beside the shared state
     assert pqn_trainer.config.first_learning_iteration == 0  # learns from its first rollout
 
 

@@ -267,7 +267,8 @@ def test_divergence_flag_names_the_first_bad_quantity_and_step(
     if quantity == "q_values":  # the acting step's Q-values are the first to see them
         ts = ts.replace(params=nan(ts.params))
     elif quantity == "loss":  # rewards in the replay buffer: only the TD loss sees them
-        ts = ts.replace(buffer=ts.buffer.replace(reward=nan(ts.buffer.reward)))
+        buffer = ts.algo_state.buffer.replace(reward=nan(ts.algo_state.buffer.reward))
+        ts = ts.replace(algo_state=ts.algo_state.replace(buffer=buffer))
     else:  # an infinite step size: loss and Q-values finite, the updated parameters not
         ts = ts.replace(hparams=ts.hparams.replace(lr=jnp.float32(jnp.inf)))
     ts, _ = stepwise_run_one(ts, first_learning)  # a learning iteration

@@ -40,13 +40,15 @@ def test_env_shards_step_their_envs_exactly_as_one_device():
     # really split: each device holds half of each seed's envs and replay columns
     assert {s.data.shape for s in state2.obs.addressable_shards} == {(1, 2, one.obs_size)}
     rows = WARM_UP.buffer_rows
-    assert {s.data.shape for s in state2.buffer.obs.addressable_shards} == {
+    assert {s.data.shape for s in state2.algo_state.buffer.obs.addressable_shards} == {
         (1, rows, 2, one.obs_size)
     }
     # the same global random numbers, so the same episodes and replay contents, bit for bit
-    for name in ("obs", "env_state", "buffer", "episode_return", "episode_length"):
+    for name in ("obs", "env_state", "episode_return", "episode_length"):
         a, b = jax.device_get(getattr(state1, name)), jax.device_get(getattr(state2, name))
         jax.tree.map(np.testing.assert_array_equal, a, b)
+    a, b = jax.device_get((state1.algo_state.buffer, state2.algo_state.buffer))
+    jax.tree.map(np.testing.assert_array_equal, a, b)
     for k in metrics1:
         np.testing.assert_array_equal(metrics1[k], metrics2[k], err_msg=k)
 
@@ -59,7 +61,7 @@ def test_env_shards_train_one_agent_as_one_device():
     assert metrics["loss"][0, -1] > 0  # it learned
     # parameters and optimizer state are replicated over the env blocks: each device's own
     # copy, not one device's copy reported twice, must be the same after the updates
-    for tree in (state.params, state.opt_state, state.target_params):
+    for tree in (state.params, state.opt_state, state.algo_state.target_params):
         for leaf in jax.tree.leaves(tree):
             copies = [np.asarray(s.data) for s in leaf.addressable_shards]
             assert len(copies) == 2

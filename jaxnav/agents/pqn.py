@@ -4,7 +4,7 @@ lambda-returns over a rollout of many parallel envs, bootstrapped from the onlin
 PQN has no replay buffer and no target network: each iteration collects ``rollout_length``
 steps of every env, computes these targets once with the current parameters, and regresses
 the LayerNorm Q-network (``dqn.QNetwork(layer_norm=True)``) onto them for a few epochs of
-minibatches (``jaxnav.train``).
+minibatches (``jaxnav.algos.pqn``).
 """
 
 from __future__ import annotations

@@ -2,13 +2,9 @@
 
 The whole run is a ``jax.lax.scan`` over logging intervals, each a scan over iterations. An
 iteration steps every env ``rollout_length`` times (acting epsilon-greedily with the online
-network), then learns from what it collected:
-
-- ``algo="dqn"`` (the paper's): one env step, written into the replay buffer, then
-  ``updates_per_iteration`` = ``replay_ratio * num_envs / batch_size`` gradient steps on replay
-  samples against a target network (``replay_ratio`` sampled transitions per env step);
-- ``algo="pqn"``: a rollout of many envs, lambda-returns from the online network, then
-  ``num_epochs`` passes of ``num_minibatches`` gradient steps over it; no replay, no target.
+network), then learns from what it collected, as the algorithm ``config.algo`` does it
+(``jaxnav.algos``: the DQN's replay and target network, PQN's lambda-returns over a rollout).
+The loop itself (env steps, gradient steps, the divergence guard, logging) is written once here.
 
 The same compiled interval runs a whole training or a chunk of one (``Trainer.run``), so a run
 cut into chunks for checkpoints computes exactly what an uncut one does. ``jit(vmap(train))``
@@ -25,14 +21,15 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 import optax
 from flax import struct
 from jax.sharding import NamedSharding
 from jax.sharding import PartitionSpec as P
 
 from jaxnav import sharding
-from jaxnav.agents import dqn, pqn
+from jaxnav.agents import dqn
+from jaxnav.algos import backend
+from jaxnav.algos.base import LossFn, TrainState, Transitions
 from jaxnav.config import TrainConfig
 from jaxnav.registration import make
 from jaxnav.sharding import ENVS, SEEDS
@@ -56,6 +53,10 @@ METRIC_NAMES = (
 # iteration's Q-values anyway). ``TrainState.diverged`` becomes 1 + the index of the first
 # non-finite one.
 DIVERGENCE_QUANTITIES = ("q_values", "loss", "params")
+
+# The fields of ``TrainState`` that held the DQN's target network and replay buffer (None for
+# PQN) in checkpoints saved before ``algo_state`` held them (``legacy_checkpoint_layout``)
+LEGACY_ALGO_FIELDS = ("target_params", "buffer")
 
 # XLA options every training program is compiled with (``jit_training``). On a GPU, XLA records a
 # program's kernels into command buffers (CUDA graphs) that by default run them one after
@@ -113,36 +114,6 @@ class HParams:
         return cls(**{n: jnp.asarray(getattr(config, n), jnp.float32) for n in names})
 
 
-@struct.dataclass
-class Transitions:
-    """What a rollout collected, laid out [time, env, ...]."""
-
-    obs: jax.Array
-    action: jax.Array
-    reward: jax.Array
-    next_obs: jax.Array  # the final observation where the episode ended
-    terminated: jax.Array
-    done: jax.Array
-    value: jax.Array  # max_a Q(obs, a) of the acting pass
-
-
-@struct.dataclass
-class TrainState:
-    params: Any
-    target_params: Any  # None for PQN
-    opt_state: Any
-    buffer: dqn.ReplayBuffer | None  # None for PQN
-    env_state: Any
-    obs: jax.Array  # [N, D]
-    episode_return: jax.Array  # [N] running return of each env's current episode
-    episode_length: jax.Array  # [N]
-    key: jax.Array
-    hparams: HParams
-    # divergence guard: set once, at the first iteration where a watched quantity is NaN/Inf
-    diverged: jax.Array  # int32, see DIVERGENCE_QUANTITIES
-    diverged_at: jax.Array  # int32, env steps when it was seen (0 if not diverged)
-
-
 class Trainer:
     """Builds the environment, network and the compiled pieces of a training run."""
 
@@ -169,6 +140,7 @@ class Trainer:
             else self.network
         )
         self.obs_size = self.env.observation_space(self.env_params).shape[0]
+        self.algorithm = config.algorithm(self)
         self._check_memory()
 
     @staticmethod
@@ -179,37 +151,6 @@ class Trainer:
         if not (config.layer_norm and config.fused_layer_norm):
             return "flax"
         return "pallas" if jax.default_backend() == "gpu" else "fused"
-
-    @staticmethod
-    def target_update_select() -> bool:
-        """Whether DQN's target update is a select over the parameters, as on a GPU, where
-        a cond every gradient step cost more (H100, GridMaze-v0 at 4,096 envs: 3.4 -> 3.2 s of
-        training, docs/results-history.md); on a CPU the cond skips the parameter-sized work."""
-        return jax.default_backend() != "cpu"
-
-    @staticmethod
-    def updates_unroll(algo: str, steps: int) -> int:
-        """How many of a loop's ``steps`` gradient steps one trip runs, so that XLA schedules
-        across steps: on a GPU up to 16 of an epoch's PQN minibatches (RobotNav-v0's preset and
-        GridMaze-v0 at 32,768 envs train a few percent faster with 8 than rolled, for a few
-        seconds more compile; all 16 of RobotNav-v0's took 25.48 ms an iteration against
-        25.61-25.86 with 8 on one H200, at no more compile, docs/results-history.md) and 2 of the
-        DQN's updates (3.32 -> 3.24 ms an iteration of GridMaze-v0 at 4,096 envs on one H200;
-        before its batches were sampled ahead of the loop, unrolled updates ran slower); on a
-        CPU 1, where the loop costs nothing to speak of and compiles stay short."""
-        if jax.default_backend() != "gpu":
-            return 1
-        return min(steps, 16 if algo == "pqn" else 2)
-
-    @staticmethod
-    def returns_unrolled() -> bool:
-        """Whether PQN's lambda-returns run as straight-line code (``pqn.lambda_returns``'s
-        ``unrolled``): on a GPU, where each trip of the loop costs a round trip to the host,
-        at no measurable cost in compile time; on a CPU the loop, whose trips cost nothing to
-        speak of. The rollout's own loop stays rolled: two env steps a trip saved about 0.7
-        ms of RobotNav-v0's 31 ms iteration for about 5 s more compile, a loss below billions
-        of env steps (docs/results-history.md)."""
-        return jax.default_backend() == "gpu"
 
     @property
     def network_input(self) -> dqn.InputSpec:
@@ -227,7 +168,7 @@ class Trainer:
         sizes = (first, *c.hidden_sizes, self.env.num_actions + 1)
         weights = sum((a + 1) * b for a, b in zip(sizes[:-1], sizes[1:], strict=False))
         obs_bytes = self.obs_size * jnp.dtype(self.env.observation_space().dtype).itemsize
-        rows = c.rollout_length if c.algo == "pqn" else c.buffer_rows
+        rows = c.algorithm.kept_rows(c)
         replay = rows * c.num_envs * (2 * obs_bytes + 4 * 4)
         # the host keeps every interval's metrics, [seeds, logs] per name (4-byte values),
         # and a copy of them while a checkpoint is written
@@ -259,15 +200,10 @@ class Trainer:
             )
 
     def _kept_sizes(self) -> str:
-        """The fields that size what training keeps: the transitions (PQN's rollout, the
-        DQN's replay buffer) and the network."""
+        """The fields that size what training keeps: the algorithm's transitions (a replay
+        buffer, a rollout) and the network."""
         c = self.config
-        kept = (
-            f"rollout_length={c.rollout_length}"
-            if c.algo == "pqn"
-            else f"buffer_size={c.buffer_size}"
-        )
-        return f"{kept}, hidden_sizes={','.join(map(str, c.hidden_sizes))}"
+        return f"{c.algorithm.kept_sizes(c)}, hidden_sizes={','.join(map(str, c.hidden_sizes))}"
 
     # -- pieces ---------------------------------------------------------------------
     def default_hparams(self) -> HParams:
@@ -289,9 +225,7 @@ class Trainer:
         # one flat vector instead of a leaf per layer: far fewer small kernels per update, which
         # bound PQN's many minibatch steps on a GPU (docs/results-history.md)
         chain = [optax.clip_by_global_norm(hp.max_grad_norm), opt]
-        if jax.default_backend() == "gpu":
-            # the flat gradient written out once: otherwise the clip's norm and Adam's moments
-            # each read the layers' gradients through the concatenation, the norm slowly
+        if backend.optimizer_barrier():
             chain.insert(0, optax.stateless(lambda g, _: jax.lax.optimization_barrier(g)))
         return optax.flatten(optax.chain(*chain))
 
@@ -304,17 +238,10 @@ class Trainer:
         obs, env_state = jax.vmap(self.env.reset, in_axes=(0, None))(
             jax.random.split(k_env, c.num_envs), self.env_params
         )
-        replay = c.algo == "dqn"
-        obs_dtype = self.env.observation_space().dtype
         return TrainState(
             params=params,
-            target_params=params if replay else None,
             opt_state=self._optimizer(hp).init(params),
-            buffer=(
-                dqn.buffer_init(c.buffer_rows, c.num_envs, self.obs_size, obs_dtype)
-                if replay
-                else None
-            ),
+            algo_state=self.algorithm.init_state(params),
             env_state=env_state,
             obs=obs,
             episode_return=jnp.zeros(c.num_envs),
@@ -329,30 +256,18 @@ class Trainer:
         frac = jnp.clip(1.0 - env_steps / hp.eps_decay_steps, 0.0, 1.0)
         return hp.eps_end + (hp.eps_start - hp.eps_end) * frac
 
-    def minibatch_loss(self, ts: TrainState) -> Callable[[Any, Any], tuple[jax.Array, dict]]:
+    def minibatch_loss(self, ts: TrainState) -> LossFn:
         """The algorithm's loss of one minibatch, ``loss(params, batch) -> (loss, rows)``
         (``rows``: ``dqn.regression_loss``'s diagnostics per row), as the training's gradient
-        steps take it: for DQN the TD loss against ``ts``'s target network on a
-        ``dqn.buffer_sample`` batch, for PQN the regression on ``(obs [B, D], action [B],
-        target [B])`` (the target a lambda-return)."""
-        c, apply = self.config, self.learner_network.apply
-        if c.algo == "dqn":
-            return lambda params, batch: dqn.td_loss(
-                params, ts.target_params, apply, batch, c.double, c.loss
-            )
-
-        def loss_fn(params, batch):
-            obs, action, target = batch
-            return dqn.regression_loss(params, apply, obs, action, target, c.loss)
-
-        return loss_fn
+        steps take it (``Algorithm.minibatch_loss``)."""
+        return self.algorithm.minibatch_loss(ts)
 
     def gradient_step(
         self, ts: TrainState, batch: Any, loss_fn: Callable
     ) -> tuple[TrainState, dict]:
         """One optimizer step (gradient clipping, then Adam or SGD at the scheduled learning
         rate) on ``loss_fn(params, batch) -> (loss, rows)``, e.g. ``minibatch_loss(ts)``;
-        returns the new state and ``rows``. Every update of both algorithms is this step."""
+        returns the new state and ``rows``. Every update of every algorithm is this step."""
         # data parallel over a seed's devices: each computes the loss and gradient of its part
         # of the batch, and XLA sums the parts (the gradient averaging of ``sharded``)
         batch = jax.lax.with_sharding_constraint(batch, NamedSharding(self.mesh, P(ENVS)))
@@ -361,7 +276,7 @@ class Trainer:
         params = optax.apply_updates(ts.params, updates)
         return ts.replace(params=params, opt_state=opt_state), rows
 
-    def _env_step(
+    def env_step(
         self,
         ts: TrainState,
         keys: tuple[jax.Array, jax.Array, jax.Array],
@@ -405,163 +320,16 @@ class Trainer:
         )
         return ts, (transitions, jnp.isfinite(q).all(), stats)
 
-    def _dqn_learn(
-        self, ts: TrainState, tr: Transitions, env_steps: jax.Array, key: jax.Array
-    ) -> tuple[TrainState, dict]:
-        """Write the step into replay; once ``learning_starts`` is passed, gradient steps and
-        the target network's update."""
-        c, hp = self.config, ts.hparams
-        step = jax.tree.map(lambda x: x[0], tr)
-        buffer = dqn.buffer_add(
-            ts.buffer, step.obs, step.action, step.reward, step.next_obs, step.terminated,
-            step.done,
-        )  # fmt: skip
-        ts = ts.replace(buffer=buffer)
-        learning = env_steps >= c.learning_start_steps
-
-        # The target network is updated when env steps cross a multiple of the period
-        # (rejax-style), at the resolution of gradient steps: the iteration's u steps each
-        # stand for num_envs / u of its env steps, and a step whose share crosses a multiple
-        # updates it. So target_update_period means the same at any num_envs, also where one
-        # iteration of many envs spans several periods. Env steps and the offsets are
-        # unbatched under vmap, so on a CPU the cond skips the parameter-sized work for real.
-        period, u = c.target_update_period, c.updates_per_iteration
-        ends = (np.arange(1, u + 1, dtype=np.int64) * c.num_envs // u).astype(np.int32)
-        starts = np.concatenate([[0], ends[:-1]]).astype(np.int32)
-
-        def updated_target(ts: TrainState) -> Any:
-            return dqn.polyak(ts.target_params, ts.params, hp.tau)
-
-        def update(carry, xs):
-            ts, total = carry
-            batch, start, end = xs
-            ts, rows = self.gradient_step(ts, batch, self.minibatch_loss(ts))
-            crossed = (env_steps + end) // period > (env_steps + start) // period
-            if self.target_update_select():
-                target = jax.tree.map(
-                    partial(jnp.where, crossed), updated_target(ts), ts.target_params
-                )
-                ts = ts.replace(target_params=target)
-            else:
-                ts = jax.lax.cond(
-                    crossed,
-                    lambda ts: ts.replace(target_params=updated_target(ts)),
-                    lambda ts: ts,
-                    ts,
-                )
-            return (ts, dqn.diagnostics_add(total, rows)), None
-
-        def updates(ts):
-            # the iteration's batches sampled at once: replay does not change during its
-            # gradient steps, and sampling inside each one put it first in every step's chain
-            # of kernels (the same samples: one key a step either way)
-            batches = jax.vmap(
-                lambda k: dqn.buffer_sample(ts.buffer, k, c.batch_size, c.n_step, hp.gamma)
-            )(jax.random.split(key, u))
-            total = dqn.diagnostics_init(c.batch_size)
-            xs, unroll = (batches, starts, ends), self.updates_unroll(c.algo, u)
-            (ts, total), _ = jax.lax.scan(update, (ts, total), xs, unroll=unroll)
-            aux = dqn.diagnostics_means(total, u)
-            return ts, aux | {"updated": jnp.ones((), jnp.int32)}
-
-        def no_updates(ts):
-            zeros = {name: jnp.zeros(()) for name in dqn.DIAGNOSTICS}
-            return ts, zeros | {"updated": jnp.zeros((), jnp.int32)}
-
-        ts, aux = jax.lax.cond(learning, updates, no_updates, ts)
-        return ts, aux
-
-    def next_values(self, params: Any, tr: Transitions, last_obs: jax.Array) -> jax.Array:
-        """``max_a Q(s', a)`` for every step of rollout ``tr`` [T, N], the observation after
-        the step (``last_obs`` after the last one; the final observation where an episode
-        ended), as one forward pass over ``tr.next_obs`` would give them.
-
-        The acting pass of step t + 1 already valued the observation after step t unless the
-        episode ended there (it then acted on the reset's observation): values are taken from
-        it, and only ``last_obs`` and the final observations of episodes cut by the time
-        limit go through the network again (terminated ones do not bootstrap). The time
-        limit cuts an env at most once in ``max_steps_in_episode`` steps, so, in a rollout
-        no longer than that, at most once: one pass over one row an env. Longer rollouts (or
-        an env cut twice) take one pass over every next observation."""
-        q_max = lambda obs: self.learner_network.apply(params, obs).max(axis=-1)  # noqa: E731
-        every = lambda _: q_max(tr.next_obs)  # noqa: E731
-        if tr.reward.shape[0] > int(self.env_params.max_steps_in_episode):
-            return every(None)
-        cut = tr.done & ~tr.terminated
-
-        def once(_) -> jax.Array:
-            step = jnp.argmax(cut, axis=0)  # each env's cut step, 0 if none
-            final = q_max(tr.next_obs[step, jnp.arange(cut.shape[1])])
-            following = jnp.concatenate([tr.value[1:], q_max(last_obs)[None]])
-            return jnp.where(cut, final, following)
-
-        return jax.lax.cond((cut.sum(axis=0) <= 1).all(), once, every, None)
-
-    def _pqn_learn(
-        self, ts: TrainState, tr: Transitions, key: jax.Array
-    ) -> tuple[TrainState, dict]:
-        """Lambda-returns of the rollout from the current network, then ``num_epochs``
-        shuffled passes of ``num_minibatches`` gradient steps over it."""
-        c, hp = self.config, ts.hparams
-        next_value = self.next_values(ts.params, tr, ts.obs)
-        targets = pqn.lambda_returns(
-            tr.reward,
-            tr.terminated,
-            tr.done,
-            next_value,
-            hp.gamma,
-            hp.td_lambda,
-            unrolled=self.returns_unrolled(),
-        )
-        n = c.steps_per_iteration
-        data = (
-            tr.obs.reshape(n, -1),
-            tr.action.reshape(n),
-            jax.lax.stop_gradient(targets).reshape(n),
-        )
-        loss_fn = self.minibatch_loss(ts)
-
-        def minibatch(carry, rows):
-            ts, total = carry
-            ts, diagnostics = self.gradient_step(ts, jax.tree.map(lambda x: x[rows], data), loss_fn)
-            return (ts, dqn.diagnostics_add(total, diagnostics)), None
-
-        def epoch(carry, k):
-            # each step gathers its own rows: no shuffled copy of the whole rollout an epoch
-            order = pqn.shuffled_rows(k, n).reshape(c.num_minibatches, -1)
-            unroll = self.updates_unroll(c.algo, c.num_minibatches)
-            return jax.lax.scan(minibatch, carry, order, unroll=unroll)[0], None
-
-        carry = (ts, dqn.diagnostics_init(c.minibatch_size))
-        (ts, total), _ = jax.lax.scan(epoch, carry, jax.random.split(key, c.num_epochs))
-        aux = dqn.diagnostics_means(total, c.num_epochs * c.num_minibatches)
-        return ts, aux | {"updated": jnp.ones((), jnp.int32)}
-
     def _iteration(self, ts: TrainState, it: jax.Array) -> tuple[TrainState, dict]:
-        """Every env steps ``rollout_length`` times, then the algorithm learns.
+        """One iteration of the algorithm (``Algorithm.iteration``: act, then learn), then
+        the divergence guard and the iteration's statistics.
 
         ``it`` (the global iteration) comes from the scan, not the state, so it is unbatched
-        under ``vmap`` and DQN's ``cond`` skips the updates for real during warm-up.
+        under ``vmap`` and the DQN's ``cond`` skips the updates for real during warm-up.
         """
-        c, hp = self.config, ts.hparams
+        c = self.config
         env_steps = it * c.steps_per_iteration
-        if c.algo == "dqn":
-            key, k_act, k_eps, k_step, k_learn = jax.random.split(ts.key, 5)
-            eps = jnp.where(env_steps >= c.learning_start_steps, self.epsilon(hp, env_steps), 1.0)
-            ts, collected = self._env_step(ts, (k_act, k_eps, k_step), eps, ts.params)
-            tr, q_finite, stats = jax.tree.map(lambda x: x[None], collected)
-            ts, aux = self._dqn_learn(ts.replace(key=key), tr, env_steps, k_learn)
-        else:
-            key, k_roll, k_learn = jax.random.split(ts.key, 3)
-            eps = self.epsilon(hp, env_steps)
-            # the parameters do not change within a rollout: cast once for its acting passes
-            acting = self.network.compute_params(ts.params)
-            ts, (tr, q_finite, stats) = jax.lax.scan(
-                lambda ts, k: self._env_step(ts, tuple(jax.random.split(k, 3)), eps, acting),
-                ts,
-                jax.random.split(k_roll, c.rollout_length),
-            )
-            ts, aux = self._pqn_learn(ts.replace(key=key), tr, k_learn)
+        ts, q_finite, stats, aux = self.algorithm.iteration(ts, env_steps)
         stats = jax.tree.map(jnp.sum, stats)
         finite = q_finite.all() & jnp.isfinite(aux["q_mean"]) & jnp.isfinite(aux["q_max"])
         ts = self._flag_divergence(
@@ -631,6 +399,35 @@ class Trainer:
     def train(self, key: jax.Array, hparams: HParams | None = None) -> tuple[TrainState, dict]:
         return self.run(self.init(key, hparams), 0, self.config.num_logs)
 
+    def state_specs(self, state: TrainState) -> TrainState:
+        """``PartitionSpec``s of a seed-batched ``state`` (``sharding.state_specs``, with
+        the algorithm's for its ``algo_state``)."""
+        algo_specs = self.algorithm.state_specs(state.algo_state, P(SEEDS))
+        return sharding.state_specs(state, algo_specs)
+
+    def legacy_checkpoint_layout(
+        self, state_like: TrainState
+    ) -> tuple[dict[str, Any], Callable[[dict[str, Any]], TrainState]]:
+        """``(layout, upgrade)`` for checkpoints saved before the algorithms kept their own
+        state in ``algo_state``: ``layout`` is ``state_like`` as those were saved (a dict of
+        ``TrainState``'s fields with ``LEGACY_ALGO_FIELDS`` in place of ``algo_state``,
+        None where the algorithm has no such field); ``upgrade`` turns a state restored in
+        it into a ``TrainState``."""
+        algo_like = state_like.algo_state
+        shared = {
+            name: getattr(state_like, name)
+            for name in state_like.__dataclass_fields__
+            if name != "algo_state"
+        }
+        layout = {**shared, **{n: getattr(algo_like, n, None) for n in LEGACY_ALGO_FIELDS}}
+
+        def upgrade(saved: dict[str, Any]) -> TrainState:
+            kept = [n for n in LEGACY_ALGO_FIELDS if hasattr(algo_like, n)]
+            algo_state = algo_like and algo_like.replace(**{n: saved[n] for n in kept})
+            return TrainState(**{n: saved[n] for n in shared}, algo_state=algo_state)
+
+        return layout, upgrade
+
     def sharded(self, keys: jax.Array) -> tuple[Callable, Callable, Any]:
         """``(init, interval, state_like)`` for the seeds of ``keys`` on ``self.mesh``:
         ``init(keys)``, jitted, is the seed-batched state (abstract: ``state_like``) laid out
@@ -643,7 +440,7 @@ class Trainer:
         device does, up to the order of floating-point sums. Compile them with
         ``COMPILER_OPTIONS`` (``jaxnav.programs`` does) to run at full speed on a GPU."""
         state_like = jax.eval_shape(jax.vmap(self.init), keys)
-        specs = sharding.state_specs(state_like)
+        specs = self.state_specs(state_like)
         state_sharding = sharding.shardings(self.mesh, specs)
         init = jax.jit(jax.vmap(self.init, spmd_axis_name=SEEDS), out_shardings=state_sharding)
         state_like = jax.tree.map(

@@ -1,0 +1,145 @@
+"""The interface every training algorithm implements, and the state the shared loop carries.
+
+``jaxnav.train.Trainer`` is the one training loop: it steps the envs, takes gradient steps,
+guards against divergence and logs. An algorithm (``jaxnav.algos.ALGOS``) is a subclass of
+``Algorithm`` bound to that loop: what it adds to the training state (``TrainState.algo_state``),
+how an iteration acts and learns, its derived sizes and its config's validation. Adding an
+algorithm is its module, its presets (``jaxnav.presets``) and its tests.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any, Protocol
+
+import jax
+from flax import struct
+
+
+@struct.dataclass
+class Transitions:
+    """What a rollout collected, laid out [time, env, ...]."""
+
+    obs: jax.Array
+    action: jax.Array
+    reward: jax.Array
+    next_obs: jax.Array  # the final observation where the episode ended
+    terminated: jax.Array
+    done: jax.Array
+    value: jax.Array  # max_a Q(obs, a) of the acting pass
+
+
+@struct.dataclass
+class TrainState:
+    params: Any
+    opt_state: Any
+    algo_state: Any  # the algorithm's own pytree (the DQN's target network and replay buffer)
+    env_state: Any
+    obs: jax.Array  # [N, D]
+    episode_return: jax.Array  # [N] running return of each env's current episode
+    episode_length: jax.Array  # [N]
+    key: jax.Array
+    hparams: Any  # ``jaxnav.train.HParams``
+    # divergence guard: set once, at the first iteration where a watched quantity is NaN/Inf
+    diverged: jax.Array  # int32, see ``jaxnav.train.DIVERGENCE_QUANTITIES``
+    diverged_at: jax.Array  # int32, env steps when it was seen (0 if not diverged)
+
+
+# gradient steps per iteration, at most (a scan of them is compiled into every iteration)
+MAX_UPDATES = 65536
+
+LossFn = Callable[[Any, Any], tuple[jax.Array, dict]]  # (params, batch) -> (loss, rows)
+
+
+class Loop(Protocol):
+    """What an algorithm reads of the training loop (``jaxnav.train.Trainer``)."""
+
+    config: Any  # ``jaxnav.config.TrainConfig``
+    env: Any
+    env_params: Any
+    network: Any  # ``agents.dqn.QNetwork``
+    learner_network: Any  # the same, as the training program runs it (over devices)
+    obs_size: int
+
+    def env_step(
+        self, ts: TrainState, keys: tuple[jax.Array, jax.Array, jax.Array], eps: jax.Array,
+        acting_params: Any,
+    ) -> tuple[TrainState, tuple[Transitions, jax.Array, dict]]: ...  # fmt: skip
+
+    def gradient_step(
+        self, ts: TrainState, batch: Any, loss_fn: LossFn
+    ) -> tuple[TrainState, dict]: ...
+
+    def epsilon(self, hp: Any, env_steps: jax.Array) -> jax.Array: ...
+
+
+class Algorithm:
+    """An algorithm of the training loop. The class methods read a ``TrainConfig`` alone
+    (``TrainConfig.validate`` and its derived sizes call them); an instance is bound to a
+    ``Loop`` and builds the algorithm's part of the compiled training."""
+
+    # the config field that sets ``minibatch_size``, as messages name it
+    minibatch_field = "minibatch_size"
+
+    def __init__(self, loop: Loop):
+        self.loop = loop
+        self.config = loop.config
+
+    # -- the config alone -----------------------------------------------------------
+    @classmethod
+    def validate(cls, config: Any) -> None:
+        """``ValueError`` (one line) naming the first value of ``config`` (a ``TrainConfig``,
+        whose own checks passed) that this algorithm cannot train with."""
+
+    @classmethod
+    def first_learning_iteration(cls, config: Any) -> int:
+        """The first iteration that takes gradient steps."""
+        return 0
+
+    @classmethod
+    def updates_per_learning_iteration(cls, config: Any) -> int:
+        """Gradient steps of an iteration that learns."""
+        raise NotImplementedError
+
+    @classmethod
+    def minibatch_size(cls, config: Any) -> int:
+        """Transitions per gradient step."""
+        raise NotImplementedError
+
+    @classmethod
+    def kept_rows(cls, config: Any) -> int:
+        """Rows of ``num_envs`` transitions training keeps in memory (a replay buffer, a
+        rollout)."""
+        raise NotImplementedError
+
+    @classmethod
+    def kept_sizes(cls, config: Any) -> str:
+        """The fields that size what ``kept_rows`` keeps, e.g. "buffer_size=100000"."""
+        raise NotImplementedError
+
+    # -- the training program --------------------------------------------------------
+    def init_state(self, params: Any) -> Any:
+        """The algorithm's part of a fresh ``TrainState`` (``algo_state``) for the network's
+        initial ``params``; None where it keeps nothing of its own."""
+        return None
+
+    def state_specs(self, algo_state: Any, per_seed: Any) -> Any:
+        """``PartitionSpec``s of a seed-batched ``algo_state`` (``jaxnav.sharding``): by
+        default ``per_seed`` for every array."""
+        return jax.tree.map(lambda _: per_seed, algo_state)
+
+    def minibatch_loss(self, ts: TrainState) -> LossFn:
+        """The loss of one minibatch as the gradient steps take it: ``loss(params, batch) ->
+        (loss, rows)``, ``rows`` the per-row diagnostics of ``agents.dqn.regression_loss``."""
+        raise NotImplementedError
+
+    def iteration(
+        self, ts: TrainState, env_steps: jax.Array
+    ) -> tuple[TrainState, jax.Array, dict, dict]:
+        """One iteration from ``env_steps`` env steps done: act (``Loop.env_step``) and learn
+        (``Loop.gradient_step``) with the keys it splits from ``ts.key``. Returns the state
+        (its ``key`` advanced), whether the acting Q-values were finite, the episode
+        statistics of every env step (per env, summed by the loop) and the learning's
+        diagnostics: ``loss``, ``q_mean``, ``q_max`` and ``updated`` (1 if it took gradient
+        steps)."""
+        raise NotImplementedError

@@ -1,0 +1,139 @@
+"""PQN (Gallici et al. 2024): every iteration is a rollout of ``rollout_length`` steps of
+every env, lambda-returns from the online network (``agents.pqn.lambda_returns``), then
+``num_epochs`` shuffled passes of ``num_minibatches`` gradient steps over it; no replay, no
+target network (the LayerNorm network keeps the bootstrapped targets from diverging)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+
+from jaxnav.agents import dqn, pqn
+from jaxnav.algos import backend
+from jaxnav.algos.base import Algorithm, LossFn, TrainState, Transitions
+
+
+class PQN(Algorithm):
+    """Lambda-returns over rollouts of many envs; keeps nothing beyond the shared state."""
+
+    gpu_updates_unroll = 16
+
+    @classmethod
+    def validate(cls, config: Any) -> None:
+        if config.steps_per_iteration % config.num_minibatches:
+            raise ValueError(
+                f"num_minibatches={config.num_minibatches} does not divide the "
+                f"num_envs * rollout_length = {config.steps_per_iteration} transitions of a "
+                "rollout"
+            )
+
+    @classmethod
+    def updates_per_learning_iteration(cls, config: Any) -> int:
+        return config.num_epochs * config.num_minibatches
+
+    @classmethod
+    def minibatch_size(cls, config: Any) -> int:
+        return config.steps_per_iteration // config.num_minibatches
+
+    @classmethod
+    def kept_rows(cls, config: Any) -> int:
+        return config.rollout_length
+
+    @classmethod
+    def kept_sizes(cls, config: Any) -> str:
+        return f"rollout_length={config.rollout_length}"
+
+    def minibatch_loss(self, ts: TrainState) -> LossFn:
+        """The regression on ``(obs [B, D], action [B], target [B])``, the target a
+        lambda-return."""
+        c, apply = self.config, self.loop.learner_network.apply
+
+        def loss_fn(params, batch):
+            obs, action, target = batch
+            return dqn.regression_loss(params, apply, obs, action, target, c.loss)
+
+        return loss_fn
+
+    def iteration(
+        self, ts: TrainState, env_steps: jax.Array
+    ) -> tuple[TrainState, jax.Array, dict, dict]:
+        """A rollout of every env, epsilon-greedy, then ``learn``."""
+        c, loop = self.config, self.loop
+        key, k_roll, k_learn = jax.random.split(ts.key, 3)
+        eps = loop.epsilon(ts.hparams, env_steps)
+        # the parameters do not change within a rollout: cast once for its acting passes
+        acting = loop.network.compute_params(ts.params)
+        ts, (tr, q_finite, stats) = jax.lax.scan(
+            lambda ts, k: loop.env_step(ts, tuple(jax.random.split(k, 3)), eps, acting),
+            ts,
+            jax.random.split(k_roll, c.rollout_length),
+        )
+        ts, aux = self.learn(ts.replace(key=key), tr, k_learn)
+        return ts, q_finite, stats, aux
+
+    def next_values(self, params: Any, tr: Transitions, last_obs: jax.Array) -> jax.Array:
+        """``max_a Q(s', a)`` for every step of rollout ``tr`` [T, N], the observation after
+        the step (``last_obs`` after the last one; the final observation where an episode
+        ended), as one forward pass over ``tr.next_obs`` would give them.
+
+        The acting pass of step t + 1 already valued the observation after step t unless the
+        episode ended there (it then acted on the reset's observation): values are taken from
+        it, and only ``last_obs`` and the final observations of episodes cut by the time
+        limit go through the network again (terminated ones do not bootstrap). The time
+        limit cuts an env at most once in ``max_steps_in_episode`` steps, so, in a rollout
+        no longer than that, at most once: one pass over one row an env. Longer rollouts (or
+        an env cut twice) take one pass over every next observation."""
+        network = self.loop.learner_network
+        q_max = lambda obs: network.apply(params, obs).max(axis=-1)  # noqa: E731
+        every = lambda _: q_max(tr.next_obs)  # noqa: E731
+        if tr.reward.shape[0] > int(self.loop.env_params.max_steps_in_episode):
+            return every(None)
+        cut = tr.done & ~tr.terminated
+
+        def once(_) -> jax.Array:
+            step = jnp.argmax(cut, axis=0)  # each env's cut step, 0 if none
+            final = q_max(tr.next_obs[step, jnp.arange(cut.shape[1])])
+            following = jnp.concatenate([tr.value[1:], q_max(last_obs)[None]])
+            return jnp.where(cut, final, following)
+
+        return jax.lax.cond((cut.sum(axis=0) <= 1).all(), once, every, None)
+
+    def learn(self, ts: TrainState, tr: Transitions, key: jax.Array) -> tuple[TrainState, dict]:
+        """Lambda-returns of the rollout from the current network, then ``num_epochs``
+        shuffled passes of ``num_minibatches`` gradient steps over it."""
+        c, hp, loop = self.config, ts.hparams, self.loop
+        next_value = self.next_values(ts.params, tr, ts.obs)
+        targets = pqn.lambda_returns(
+            tr.reward,
+            tr.terminated,
+            tr.done,
+            next_value,
+            hp.gamma,
+            hp.td_lambda,
+            unrolled=backend.returns_unrolled(),
+        )
+        n = c.steps_per_iteration
+        data = (
+            tr.obs.reshape(n, -1),
+            tr.action.reshape(n),
+            jax.lax.stop_gradient(targets).reshape(n),
+        )
+        loss_fn = self.minibatch_loss(ts)
+
+        def minibatch(carry, rows):
+            ts, total = carry
+            ts, diagnostics = loop.gradient_step(ts, jax.tree.map(lambda x: x[rows], data), loss_fn)
+            return (ts, dqn.diagnostics_add(total, diagnostics)), None
+
+        def epoch(carry, k):
+            # each step gathers its own rows: no shuffled copy of the whole rollout an epoch
+            order = pqn.shuffled_rows(k, n).reshape(c.num_minibatches, -1)
+            unroll = backend.updates_unroll(c.num_minibatches, self.gpu_updates_unroll)
+            return jax.lax.scan(minibatch, carry, order, unroll=unroll)[0], None
+
+        carry = (ts, dqn.diagnostics_init(self.minibatch_size(c)))
+        (ts, total), _ = jax.lax.scan(epoch, carry, jax.random.split(key, c.num_epochs))
+        aux = dqn.diagnostics_means(total, c.num_epochs * c.num_minibatches)
+        return ts, aux | {"updated": jnp.ones((), jnp.int32)}

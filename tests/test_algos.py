@@ -1,0 +1,138 @@
+"""The algorithms behind one interface (``jaxnav.algos``): the training loop, config and
+sharding name no algorithm, every registered one trains through the interface, and
+checkpoints saved before the algorithms kept their own state still restore."""
+
+from __future__ import annotations
+
+import ast
+import dataclasses
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+import pytest
+from conftest import TINY_TRAIN  # pytest puts tests/ on sys.path
+from flax import struct
+
+from jaxnav.algos import ALGOS
+from jaxnav.algos.base import Algorithm
+from jaxnav.checkpoints import Checkpoints
+from jaxnav.sharding import is_key
+from jaxnav.train import METRIC_NAMES, Trainer
+
+PACKAGE = Path(__file__).resolve().parents[1] / "jaxnav"
+# the shared modules that must read an algorithm only through the registry
+SHARED = ("train/__init__.py", "config.py", "sharding.py", "runner.py", "checkpoints.py")
+
+
+def algorithm_branches(path: Path) -> list[str]:
+    """Where the module at ``path`` names an algorithm: a string constant that is a
+    registered name (the ``algo`` field's default aside) or a comparison of an ``algo`` with
+    string constants (``algo == "x"``, ``algo in ("x", "y")``)."""
+    tree = ast.parse(path.read_text())
+    default = {
+        id(node.value)
+        for node in ast.walk(tree)
+        if isinstance(node, ast.AnnAssign) and getattr(node.target, "id", None) == "algo"
+    }
+    found = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Constant) and node.value in ALGOS and id(node) not in default:
+            found.append(f"{path.name}:{node.lineno} {node.value!r}")
+        if isinstance(node, ast.Compare):
+            sides = [node.left, *node.comparators]
+            names = [getattr(side, "attr", getattr(side, "id", None)) for side in sides]
+            constants = [n for side in sides for n in ast.walk(side) if isinstance(n, ast.Constant)]
+            if "algo" in names and any(isinstance(c.value, str) for c in constants):
+                found.append(f"{path.name}:{node.lineno} compares algo with a name")
+    return found
+
+
+def test_the_shared_modules_name_no_algorithm(tmp_path):
+    """Adding an algorithm is its module, presets and tests: the loop, config, sharding,
+    runner and checkpoints branch on none (the registry is the one place that names them)."""
+    assert {p: algorithm_branches(PACKAGE / p) for p in SHARED} == {p: [] for p in SHARED}
+    # the check sees a branch where there is one
+    assert algorithm_branches(PACKAGE / "presets.py")
+    branch = tmp_path / "branch.py"
+    branch.write_text('def f(c):\n    return 1 if c.algo in ("a", "b") else 2\n')
+    assert algorithm_branches(branch) == ["branch.py:2 compares algo with a name"]
+
+
+@pytest.mark.parametrize("name", sorted(ALGOS))
+def test_every_registered_algorithm_trains_a_tiny_config_through_the_interface(name):
+    algorithm = ALGOS[name]
+    assert issubclass(algorithm, Algorithm)
+    config = dataclasses.replace(TINY_TRAIN, algo=name)
+    config.validate()
+    assert config.updates_per_learning_iteration >= 1 and config.minibatch_size >= 1
+    assert config.first_learning_iteration < config.iterations  # it learns within the run
+    trainer = Trainer(config)
+    assert isinstance(trainer.algorithm, algorithm)
+    init = jax.jit(trainer.init)(jax.random.key(0))
+    run = jax.jit(trainer.run, static_argnums=2)
+    state, metrics = jax.device_get(run(init, 0, config.num_logs))
+    assert set(metrics) == set(METRIC_NAMES)
+    assert all(v.shape == (config.num_logs,) for v in metrics.values())
+    assert all(np.isfinite(v).all() for v in metrics.values())
+    assert metrics["loss"][-1] > 0 and int(state.diverged) == 0  # gradient steps were taken
+    assert int(metrics["env_steps"][-1]) == config.iterations * config.steps_per_iteration
+    before, after = jax.tree.leaves(jax.device_get(init.params)), jax.tree.leaves(state.params)
+    assert all(not np.array_equal(a, b) for a, b in zip(before, after, strict=True))
+    # the algorithm's own state keeps its structure and shapes through training
+    shapes = lambda tree: jax.tree.map(lambda x: (x.shape, x.dtype), tree)  # noqa: E731
+    assert shapes(state.algo_state) == shapes(jax.device_get(init.algo_state))
+
+
+@struct.dataclass
+class FormerTrainState:
+    """``TrainState`` as checkpoints were saved before ``algo_state``: the DQN's target
+    network and replay buffer as fields of their own, None for PQN."""
+
+    params: Any
+    target_params: Any
+    opt_state: Any
+    buffer: Any
+    env_state: Any
+    obs: Any
+    episode_return: Any
+    episode_length: Any
+    key: Any
+    hparams: Any
+    diverged: Any
+    diverged_at: Any
+
+
+@pytest.mark.parametrize("name", sorted(ALGOS))
+def test_a_checkpoint_of_the_former_state_layout_restores_as_saved(name, tmp_path):
+    trainer = Trainer(dataclasses.replace(TINY_TRAIN, algo=name))
+    state = jax.device_get(jax.jit(jax.vmap(trainer.init))(jax.random.split(jax.random.key(3), 2)))
+    algo_state = state.algo_state
+    fields = {f: getattr(state, f) for f in state.__dataclass_fields__ if f != "algo_state"}
+    former = FormerTrainState(
+        **fields,
+        target_params=getattr(algo_state, "target_params", None),
+        buffer=getattr(algo_state, "buffer", None),
+    )
+    metrics = {"loss": np.arange(3, dtype=np.float32)[None]}
+    saving = Checkpoints(tmp_path / "checkpoints", keep=1)
+    saving.save(1, former, metrics, {"seconds": {}})
+    saving.close()
+
+    restoring = Checkpoints(tmp_path / "checkpoints", keep=1)
+    like = jax.eval_shape(lambda: state)
+    with pytest.raises(ValueError):  # not in today's layout
+        restoring.restore(like, metrics)
+    legacy = trainer.legacy_checkpoint_layout(like)
+    other = jax.tree.map(lambda x: jax.ShapeDtypeStruct((3, *x.shape[1:]), x.dtype), like)
+    with pytest.raises(ValueError, match=r"was saved as \w+\[2.*this run expects \w+\[3"):
+        restoring.restore(other, metrics, legacy=trainer.legacy_checkpoint_layout(other))
+    step, restored, restored_metrics, _ = restoring.restore(like, metrics, legacy=legacy)
+    restoring.close()
+    assert step == 1 and type(restored) is type(state)
+    assert jax.tree.structure(restored) == jax.tree.structure(state)
+    as_data = lambda x: jax.random.key_data(x) if is_key(x) else x  # noqa: E731
+    for a, b in zip(jax.tree.leaves(restored), jax.tree.leaves(state), strict=True):
+        np.testing.assert_array_equal(as_data(a), as_data(b))
+    np.testing.assert_array_equal(restored_metrics["loss"], metrics["loss"])
