@@ -227,21 +227,14 @@ def families(config: TrainConfig) -> list[Family]:
     return [Family("training bank", "own"), held_out, *default_families(config)[1:]]
 
 
-def run_row(index: int, episodes: int) -> dict[str, Any]:
-    label, env_kwargs, overrides = ROWS[index]
-    if index < FUSED_ROWS:
-        overrides = {"fused_layer_norm": False, **overrides}
-    config = TrainConfig.for_env(
-        "RobotNav-v0", algo="pqn", env_kwargs=env_kwargs, eval_episodes=0, **overrides
-    )
+def train_one(config: TrainConfig, keys: jax.Array) -> tuple[Trainer, Any, dict[str, Any]]:
+    """Train ``config`` on the batch of one key ``keys``; ``(trainer, final state, timing)``,
+    the timing's compile and training seconds apart, with the env steps and divergence."""
     trainer = Trainer(config)
     # vmapped over a batch of one key (rows 0-19 used jit(train)): with the optimizer state of
     # a leaf per layer that ran 1.43x as fast on one H100; with today's preset the two run
     # alike (train_vmap_h100 in docs/results-history.md)
     train = jit_training(jax.vmap(trainer.train))
-    keys = jax.random.key(0)[None]
-    if index >= SPLIT_KEY_ROWS:
-        keys = jax.random.split(jax.random.key(0), 1)
     t0 = time.perf_counter()
     compiled = train.lower(keys).compile()
     t1 = time.perf_counter()
@@ -249,16 +242,33 @@ def run_row(index: int, episodes: int) -> dict[str, Any]:
     state, metrics = jax.tree.map(lambda x: x[0], (state, metrics))
     t2 = time.perf_counter()
     steps = int(metrics["env_steps"][-1])
-    row: dict[str, Any] = {
-        "row": index,
-        "label": label,
-        "env_kwargs": env_kwargs,
-        "train": overrides,
+    timing = {
         "compile_s": round(t1 - t0, 1),
         "train_s": round(t2 - t1, 2),
         "env_steps": steps,
         "env_steps_per_s": steps / (t2 - t1),
         "diverged": int(state.diverged),
+    }
+    return trainer, state, timing
+
+
+def run_row(index: int, episodes: int) -> dict[str, Any]:
+    label, env_kwargs, overrides = ROWS[index]
+    if index < FUSED_ROWS:
+        overrides = {"fused_layer_norm": False, **overrides}
+    config = TrainConfig.for_env(
+        "RobotNav-v0", algo="pqn", env_kwargs=env_kwargs, eval_episodes=0, **overrides
+    )
+    keys = jax.random.key(0)[None]
+    if index >= SPLIT_KEY_ROWS:
+        keys = jax.random.split(jax.random.key(0), 1)
+    trainer, state, timing = train_one(config, keys)
+    row: dict[str, Any] = {
+        "row": index,
+        "label": label,
+        "env_kwargs": env_kwargs,
+        "train": overrides,
+        **timing,
         "tests": {},
     }
     policy = trainer.greedy_policy(state.params)

@@ -17,7 +17,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import time
 from pathlib import Path
 from typing import Any
 
@@ -26,13 +25,13 @@ import numpy as np
 
 import jaxnav
 from benchmarks.common import machine_info
+from benchmarks.generalist_sweep import train_one
 from jaxnav.config import TrainConfig
 from jaxnav.envs.robot import generators
 from jaxnav.evaluate import run_episodes
 from jaxnav.experiments import HELD_OUT_MAZE_SEED, Family, default_families
 from jaxnav.presets import GENERALIST_PQN
 from jaxnav.registration import registered_envs
-from jaxnav.train import Trainer, jit_training
 
 TEST_KEY = 1234
 NAV = {k: v for k, v in GENERALIST_PQN.items() if k != "algo"}  # for ids without that preset
@@ -83,27 +82,14 @@ def run_row(index: int, episodes: int) -> dict[str, Any]:
     config = TrainConfig.for_env(
         env_id, algo="pqn", env_kwargs=env_kwargs, eval_episodes=0, **overrides
     )
-    trainer = Trainer(config)
-    train = jit_training(jax.vmap(trainer.train))
-    keys = jax.random.split(jax.random.key(0), 1)
-    t0 = time.perf_counter()
-    compiled = train.lower(keys).compile()
-    t1 = time.perf_counter()
-    state, metrics = jax.block_until_ready(compiled(keys))
-    state, metrics = jax.tree.map(lambda x: x[0], (state, metrics))
-    t2 = time.perf_counter()
-    steps = int(metrics["env_steps"][-1])
+    trainer, state, timing = train_one(config, jax.random.split(jax.random.key(0), 1))
     row: dict[str, Any] = {
         "row": index,
         "label": label,
         "env": env_id,
         "env_kwargs": env_kwargs,
         "train": overrides,
-        "compile_s": round(t1 - t0, 1),
-        "train_s": round(t2 - t1, 2),
-        "env_steps": steps,
-        "env_steps_per_s": steps / (t2 - t1),
-        "diverged": int(state.diverged),
+        **timing,
         "episodes": episodes,
         "tests": {},
     }
