@@ -307,8 +307,9 @@ class RobotConfig:
                 f"maze_files={self.maze_files!r}: give maze_file or maze_files, not both"
             )
         if (self.maze == "file") != (given == 1):
+            name = "maze_files" if self.maze_files is not None else "maze_file"
             raise ValueError(
-                f"maze_file={self.maze_file!r}: give a maze file exactly when maze='file'"
+                f"{name}={getattr(self, name)!r}: give a maze file exactly when maze='file'"
             )
         if self.maze_file is not None and not isinstance(self.maze_file, (str, os.PathLike)):
             raise ValueError(f"maze_file={self.maze_file!r}: must be a path")
