@@ -3,6 +3,7 @@ each mode, where the map lies in the env, its errors, and maps as one bank of la
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import jax
@@ -169,6 +170,10 @@ def test_bad_images_are_refused_naming_the_file(tmp_path):
     # a header claiming a huge image is refused before its pixels are read
     (tmp_path / "map.pgm").write_bytes(b"P5\n100000 2\n255\n" + bytes(16))
     with pytest.raises(M.MazeFileError, match=r"map\.yaml: image .*100000 x 2 pixels"):
+        O.load_occupancy_map(path)
+    (tmp_path / "map.pgm").unlink()
+    os.mkfifo(tmp_path / "map.pgm")  # reading a FIFO would block: refused unread
+    with pytest.raises(M.MazeFileError, match=r"map\.yaml: image .*map\.pgm: not a regular"):
         O.load_occupancy_map(path)
     walled = write_map(tmp_path, [[OCC, UNK]], "walled")
     with pytest.raises(M.MazeFileError, match=r"walled\.yaml: image .*no free pixel"):

@@ -42,6 +42,7 @@ import functools
 import glob
 import math
 import os
+import stat
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -55,7 +56,7 @@ from jaxnav.envs.robot.mazes import CELL_SIZE_RANGE, Maze, MazeFileError, load_m
 MODES = ("trinary", "scale", "raw")
 SUFFIXES = (".yaml", ".yml")
 MAX_YAML_BYTES = 100_000
-MAX_IMAGE_SIDE = 16_384  # pixels; checked from the header, before the pixels are decoded
+MAX_IMAGE_SIDE = 8_192  # pixels (410 m at 0.05 m); checked from the header, before decoding
 # The maze's cells: the geodesic table is 2 (rows * cols)^2 bytes a map (512 MiB here)
 MAX_MAP_CELLS = 16_384
 # The default cell: the smallest whole number of pixels at least this wide (a 0.15 m robot
@@ -72,8 +73,14 @@ def is_map_file(path: str | os.PathLike[str]) -> bool:
 
 
 @functools.lru_cache(maxsize=64)  # maps are immutable; a changed file has another key
-def _cached(name: str, stamp: tuple[Any, ...], cell_size: float | None, unknown_free: bool) -> Maze:
-    return _read_map(name, cell_size, unknown_free)
+def _cached(
+    name: str,
+    stamps: tuple[Any, ...],
+    fields: tuple[tuple[str, Any], ...],
+    cell_size: float | None,
+    unknown_free: bool,
+) -> Maze:
+    return _read_map(name, dict(fields), cell_size, unknown_free)
 
 
 def load_occupancy_map(
@@ -89,8 +96,8 @@ def load_occupancy_map(
     ):
         raise MazeFileError(name, f"map_cell_size={cell_size!r}: must be a number of metres")
     fields = read_map_yaml(name)
-    stamp = (_stamp(name), _stamp(fields["image"]), tuple(sorted(fields.items())))
-    return _cached(name, stamp, cell_size, bool(unknown_free))
+    stamps = (_stamp(name), _stamp(fields["image"]))
+    return _cached(name, stamps, tuple(sorted(fields.items())), cell_size, bool(unknown_free))
 
 
 def _stamp(name: str) -> tuple[int, int, int, int] | None:
@@ -101,6 +108,16 @@ def _stamp(name: str) -> tuple[int, int, int, int] | None:
     return info.st_dev, info.st_ino, info.st_mtime_ns, info.st_size
 
 
+def _check_not_special(path: str, name: str, what: str) -> None:
+    """``MazeFileError`` for a FIFO, socket or device: reading one blocks or never ends."""
+    try:
+        mode = os.stat(name).st_mode
+    except OSError:
+        return  # reading it says why
+    if not (stat.S_ISREG(mode) or stat.S_ISDIR(mode)):
+        raise MazeFileError(path, f"{what}{name}: not a regular file")
+
+
 def read_map_yaml(path: str) -> dict[str, Any]:
     """The checked fields of a map_server YAML file: ``image`` (resolved beside the YAML),
     ``resolution``, ``origin`` (x, y), ``negate`` (bool), the thresholds and ``mode``."""
@@ -108,6 +125,7 @@ def read_map_yaml(path: str) -> dict[str, Any]:
     def fail(what: str) -> MazeFileError:
         return MazeFileError(path, what)
 
+    _check_not_special(path, path, "")
     try:
         with open(path, "rb") as f:
             data = f.read(MAX_YAML_BYTES + 1)  # bounded: /dev/zero is not a map
@@ -178,7 +196,22 @@ def occupancy_classes(
     channels = pixels.shape[-1]
     has_alpha = channels in (2, 4)
     colour = pixels[..., : channels - 1] if has_alpha else pixels
-    shade = colour.astype(np.float64).mean(axis=-1)
+    # classes of every possible channel sum, looked up per pixel: exact and light on memory
+    sums = colour.sum(axis=-1, dtype=np.uint16)
+    n = colour.shape[-1]
+    occupied, unknown = _classes_of_shades(
+        np.arange(255 * n + 1) / n, mode, negate, occupied_thresh, free_thresh
+    )
+    occupied, unknown = occupied[sums], unknown[sums]
+    if mode == "scale" and has_alpha:  # not fully opaque: unknown
+        unknown = unknown | (pixels[..., -1] != 255)
+        occupied = occupied & ~unknown
+    return occupied, unknown
+
+
+def _classes_of_shades(
+    shade: np.ndarray, mode: str, negate: bool, occupied_thresh: float, free_thresh: float
+) -> tuple[np.ndarray, np.ndarray]:
     if mode == "raw":
         value = np.rint(shade)
         known = value <= 100
@@ -186,8 +219,6 @@ def occupancy_classes(
     else:
         occ = (shade if negate else 255.0 - shade) / 255.0
         known = np.ones(shade.shape, bool)
-        if mode == "scale" and has_alpha:
-            known = pixels[..., -1] == 255
     occupied = known & (occ > occupied_thresh)
     free = known & (occ < free_thresh)
     if mode in ("scale", "raw"):  # a known value between the thresholds is a cost, no obstacle
@@ -205,12 +236,12 @@ def default_cell_size(resolution: float, width: int, height: int) -> float:
     return round(k * resolution, 9)
 
 
-def _read_map(path: str, cell_size: float | None, unknown_free: bool) -> Maze:
+def _read_map(path: str, f: dict[str, Any], cell_size: float | None, unknown_free: bool) -> Maze:
     def fail(what: str) -> MazeFileError:
         return MazeFileError(path, what)
 
-    f = read_map_yaml(path)
     res, image = f["resolution"], f["image"]
+    _check_not_special(path, image, "image ")
     try:
         with Image.open(image) as im:
             width, height = im.size  # the header only: sizes are checked before decoding
