@@ -178,6 +178,9 @@ def test_bad_images_are_refused_naming_the_file(tmp_path):
     walled = write_map(tmp_path, [[OCC, UNK]], "walled")
     with pytest.raises(M.MazeFileError, match=r"walled\.yaml: image .*no free pixel"):
         O.load_occupancy_map(walled)
+    lone = write_map(tmp_path, [[FREE, OCC, FREE]], "lone")
+    with pytest.raises(M.MazeFileError, match=r"lone\.yaml: no two connected free cells"):
+        O.load_occupancy_map(lone, 0.5)
     big = write_map(tmp_path, np.full((200, 200), FREE, np.uint8), "big", resolution=0.05)
     with pytest.raises(M.MazeFileError, match=r"big\.yaml: map too large: 200 x 200 cells"):
         O.load_occupancy_map(big, 0.05)

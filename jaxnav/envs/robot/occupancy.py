@@ -276,7 +276,13 @@ def _read_map(path: str, f: dict[str, Any], cell_size: float | None, unknown_fre
             "use a smaller map_cell_size"
         )
     size = round(k * res, 9) if cell_size is None else float(cell_size)
-    return Maze(grid, size, name=path, origin=f["origin"], kind="occupancy map")
+    maze = Maze(grid, size, name=path, origin=f["origin"], kind="occupancy map")
+    if len(maze.placement_cells()) < 2:
+        raise fail(
+            f"no two connected free cells at {size:g} m cells; a start and a goal need a path "
+            "(use a smaller map_cell_size)"
+        )
+    return maze
 
 
 def _pixels_per_cell(
