@@ -60,36 +60,41 @@ def test_trinary_map_saver_shades(tmp_path):
 def test_thresholds_are_strict(tmp_path):
     # occupied_thresh 0.6 is shade 102 exactly, free_thresh 0.2 is shade 204 exactly
     row = [101, 102, 204, 205]  # occupied, at the occupied edge, at the free edge, free
-    path = write_map(tmp_path, [row], occupied_thresh=0.6, free_thresh=0.2)
-    np.testing.assert_array_equal(walls(path), [[1, 1, 1, 0]])  # both edges are unknown
-    np.testing.assert_array_equal(walls(path, unknown_free=True), [[1, 0, 0, 0]])
+    path = write_map(tmp_path, [row, [FREE] * 4], occupied_thresh=0.6, free_thresh=0.2)
+    np.testing.assert_array_equal(walls(path)[0], [1, 1, 1, 0])  # both edges are unknown
+    np.testing.assert_array_equal(walls(path, unknown_free=True)[0], [1, 0, 0, 0])
 
 
 def test_negate_swaps_black_and_white(tmp_path):
-    path = write_map(tmp_path, [[0, 255, 0]], negate=1)
-    np.testing.assert_array_equal(walls(path), [[0, 1, 0]])
+    path = write_map(tmp_path, [[0, 255, 0], [0, 0, 0]], negate=1)
+    np.testing.assert_array_equal(walls(path), [[0, 1, 0], [0, 0, 0]])
 
 
 def test_scale_mode_between_thresholds_is_free_and_transparent_unknown(tmp_path):
     grey = 150  # occupancy 0.41: between the thresholds
-    rgba = [[[grey, grey, grey, 255], [FREE, FREE, FREE, 0], [OCC, OCC, OCC, 255]]]
+    rgba = [
+        [[grey, grey, grey, 255], [FREE, FREE, FREE, 0], [OCC, OCC, OCC, 255]],
+        [[FREE, FREE, FREE, 255]] * 3,
+    ]
     scale = write_map(tmp_path, rgba, "scale", "png", mode="scale")
-    np.testing.assert_array_equal(walls(scale), [[0, 1, 1]])  # transparent: unknown, a wall
+    np.testing.assert_array_equal(walls(scale)[0], [0, 1, 1])  # transparent: unknown, a wall
     # trinary ignores alpha; between the thresholds is unknown
     trinary = write_map(tmp_path, rgba, "trinary", "png", mode="trinary")
-    np.testing.assert_array_equal(walls(trinary), [[1, 0, 1]])
+    np.testing.assert_array_equal(walls(trinary)[0], [1, 0, 1])
 
 
 def test_raw_mode_reads_percent_and_ignores_negate(tmp_path):
     # 0 free, 50 a cost between the thresholds (free), 100 occupied, 255 unknown
-    path = write_map(tmp_path, [[0, 50, 100, 255]], mode="raw", negate=1)
-    np.testing.assert_array_equal(walls(path), [[0, 0, 1, 1]])
+    path = write_map(tmp_path, [[0, 50, 100, 255], [0] * 4], mode="raw", negate=1)
+    np.testing.assert_array_equal(walls(path)[0], [0, 0, 1, 1])
 
 
 def test_colour_pixels_are_averaged_to_grey(tmp_path):
     # the mean 180 is occupancy 0.29 (unknown); the red or green channel alone would be free
-    path = write_map(tmp_path, [[[240, 240, 60], [FREE, FREE, FREE]]], fmt="png")
-    np.testing.assert_array_equal(walls(path), [[1, 0]])
+    path = write_map(
+        tmp_path, [[[240, 240, 60], [FREE, FREE, FREE], [FREE, FREE, FREE]]], fmt="png"
+    )
+    np.testing.assert_array_equal(walls(path), [[1, 0, 0]])
 
 
 def test_top_row_is_plus_y_and_origin_is_kept(tmp_path):
@@ -228,3 +233,21 @@ def test_bank_refuses_mixed_cell_sizes(tmp_path):
     b = write_map(tmp_path, [[FREE, FREE]], "b", resolution=0.4)
     with pytest.raises(ValueError, match=r"b\.yaml: 0\.4 m cells, but .*a\.yaml has 0\.5 m"):
         M.pad_mazes([O.load_occupancy_map(a, None), O.load_occupancy_map(b, None)])
+
+
+def test_padding_text_mazes_keeps_start_and_lower_left():
+    big = M.parse_maze("cell_size: 0.5\n....\n....\n....\n", name="big")
+    small = M.parse_maze("cell_size: 0.5\nS.\n.G\n", name="small")
+    _, padded = M.pad_mazes([big, small])
+    assert padded.grid.shape == (3, 4) and padded.start == (1, 0) and padded.goal == (2, 1)
+    # the start's centre in metres is where it was: padding goes on top and to the right
+    assert padded.cell_center(*padded.start) == small.cell_center(*small.start)
+    np.testing.assert_array_equal(padded.grid[1:, :2], small.grid)
+    assert padded.grid[0].all() and padded.grid[:, 2:].all()
+
+
+def test_maze_file_and_maze_files_are_exclusive():
+    with pytest.raises(ValueError, match=r"^maze_files=\('a.txt',\): give maze_file or"):
+        jaxnav.make("RobotMaze-v0", maze_file="b.txt", maze_files=["a.txt"])
+    with pytest.raises(ValueError, match=r"^maze_files='maps/': give a maze file exactly when"):
+        jaxnav.make("RobotSimple-v0", maze_files="maps/")
