@@ -35,7 +35,8 @@ cell along the axes, so a robot of radius below that fits at any placement centr
 Built-in layouts, in the spirit of the paper's Fig. 5 (a 10 m square arena): ``SIMPLE`` (a room
 with two wall segments) and ``COMPLEX`` (a maze of 1 m corridors). ``random_maze_bank`` draws
 random layouts (wall segments, then pockets filled), and ``stack_mazes`` batches any list of
-mazes into arrays a JAX reset can index (``MazeBank``).
+mazes into arrays a JAX reset can index (``MazeBank``), once ``pad_mazes`` has brought mazes of
+several sizes to one. ROS map_server occupancy maps (YAML + PGM/PNG) are read by ``occupancy``.
 """
 
 from __future__ import annotations
