@@ -62,6 +62,10 @@ def parser() -> argparse.ArgumentParser:
     return p
 
 
+# at most this many layouts get a line each of their success rate (a bank of maze files)
+MAX_NAMED_MAZES = 16
+
+
 def default_out_name(policy: str, env: str | None, overrides: dict[str, Any]) -> str:
     """The file name of an evaluation in its run directory, one per policy, env, maze file and
     override set, so no evaluation overwrites another: ``eval.json`` for the trained policy on
@@ -112,6 +116,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     rows = evaluate_seeds(trainer, params, args.episodes, args.seed, args.policy, per_maze=True)
     mazes = trainer.env.num_layouts(trainer.env_params)
     stats = {m: seed_statistics([r[m] for r in rows]) for m in SEED_STATISTICS}
+    # each layout's name (a maze file's path) by index of maze_success; robot envs have them
+    names = list(getattr(trainer.env, "layout_names", ()))
     result = {
         "run": str(args.run) if args.pretrained is None else f"pretrained:{args.pretrained}",
         "env": config.env,
@@ -123,6 +129,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         **mean_of(rows),
         "over_seeds": stats,
         "per_seed": rows,
+        **({"maze_names": names} if names else {}),
     }
     if out is not None:
         run_dir.write_json(out, result)
@@ -132,6 +139,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             f"note: {args.episodes} episodes over {mazes} mazes: round-robin, "
             f"{args.episodes // mazes} or {args.episodes // mazes + 1} per maze"
         )
+    if 1 < len(names) <= MAX_NAMED_MAZES:
+        for i, name in enumerate(names):
+            rates = [r["maze_success"][i] for r in rows if r["maze_success"][i] is not None]
+            rate = f"{sum(rates) / len(rates):.3f}" if rates else "not played"
+            print(f"  success on {name}: {rate}")
     if len(rows) > 1:
         print_seed_statistics(stats)
     if out is not None:

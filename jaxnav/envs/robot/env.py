@@ -53,6 +53,11 @@ still offers 32 goals x every start. ``GENERALIST_SENSORS`` gives the observatio
 run its policy on a maze file (``RobotMaze-v0``, ``maze_file=...``, with ``num_wall_slots`` the
 maze needs).
 
+Occupancy maps (``RobotMaze-v0``, ``maze_file="floor.yaml"``): a ROS map_server YAML and its
+PGM/PNG image become a maze of ``map_cell_size`` cells (``occupancy``); ``maze_files=`` takes a
+list, a folder or a glob of maze files as one bank. Env coordinates are the map's minus its
+origin (``RobotNav.layout_origins``, ``Maze.to_env``): the grid's lower-left corner is (0, 0).
+
 JaxNav's levels (``RobotJaxNav-v0``, ``maze="jaxnav"``): the single-robot benchmark of
 JaxMARL's JaxNav as SFL evaluates it, 9 x 9 interiors of 1 m cells with up to 47 random
 obstacles (``jaxnav_levels.py``), with the map-free sensors (``MAPFREE_SENSORS``: the
@@ -97,7 +102,7 @@ from flax import struct
 from jaxnav import spaces
 from jaxnav.environment import Environment, EnvParams, EnvState, is_concrete
 from jaxnav.envs.maze_algorithms import FLOAT32_MAX, check_fields, first_blocked_cell
-from jaxnav.envs.robot import generators, geometry, jaxnav_levels, mazes
+from jaxnav.envs.robot import generators, geometry, jaxnav_levels, mazes, occupancy
 
 ACTION_NAMES = ("forward", "backward", "turn_left", "turn_right")
 MAZES = ("simple", "complex", "random", "file", "families", "jaxnav")
@@ -126,11 +131,19 @@ class RobotConfig:
     # the fields that choose the mazes (a policy tested on other mazes keeps the rest)
     MAZE_FIELDS: ClassVar[frozenset[str]] = frozenset(
         {"maze", "maze_file", "maze_seed", "num_layouts", "random_size", "num_wall_slots"}
-        | {"families", "num_goal_cells"}
+        | {"families", "num_goal_cells", "maze_files", "map_cell_size", "unknown_free"}
     )
 
     maze: str = "simple"
+    # maze="file": one maze file (the text format, or a map_server YAML: ``occupancy``), or
+    # ``maze_files``, several as a bank: a list of files, a folder or a glob pattern. Smaller
+    # mazes are padded with walls to the largest (top and right: each origin stays put)
     maze_file: str | None = None
+    maze_files: str | tuple[str, ...] | None = None
+    # occupancy maps only: the cell side in metres, a whole number of the map's pixels (None:
+    # ``occupancy.default_cell_size``), and whether unknown pixels are free (else walls)
+    map_cell_size: float | None = None
+    unknown_free: bool = False
     num_layouts: int = 256  # bank size when maze == "random", "families" or "jaxnav"
     random_size: int = 10  # cells per side of random mazes (1 m cells)
     maze_seed: int = 0  # the random, families and jaxnav banks' seed (maze i depends on (seed, i))
@@ -202,7 +215,7 @@ class RobotConfig:
     def __post_init__(self) -> None:
         # JSON (a run's config.json, --env-arg) gives ranges as lists: kept as tuples, so the
         # frozen config stays hashable and compares equal to one built in Python
-        for name in RANGE_FIELDS:
+        for name in (*RANGE_FIELDS, "maze_files"):
             v = getattr(self, name)
             if isinstance(v, list):
                 object.__setattr__(self, name, tuple(v))
@@ -288,12 +301,24 @@ class RobotConfig:
                 f"{travel:g} m at speed={self.max_speed:g}, dt={self.dt:g}, not less than its "
                 f"radius {self.min_radius}; use more substeps"
             )
-        if (self.maze == "file") != (self.maze_file is not None):
+        given = (self.maze_file is not None) + (self.maze_files is not None)
+        if given > 1:
             raise ValueError(
-                f"maze_file={self.maze_file!r}: give a maze file exactly when maze='file'"
+                f"maze_files={self.maze_files!r}: give maze_file or maze_files, not both"
+            )
+        if (self.maze == "file") != (given == 1):
+            name = "maze_files" if self.maze_files is not None else "maze_file"
+            raise ValueError(
+                f"{name}={getattr(self, name)!r}: give a maze file exactly when maze='file'"
             )
         if self.maze_file is not None and not isinstance(self.maze_file, (str, os.PathLike)):
             raise ValueError(f"maze_file={self.maze_file!r}: must be a path")
+        if self.map_cell_size is not None and not _positive(self.map_cell_size):
+            raise ValueError(
+                f"map_cell_size={self.map_cell_size!r}: must be a positive number of metres"
+            )
+        if not isinstance(self.unknown_free, bool):
+            raise ValueError(f"unknown_free={self.unknown_free!r}: must be true or false")
         if self.maze == "random" and self.num_layouts * self.random_size**2 > MAX_BANK_CELLS:
             raise ValueError(
                 f"num_layouts={self.num_layouts}, random_size={self.random_size}: too many "
@@ -313,7 +338,19 @@ class RobotConfig:
                     f"{MAX_GOAL_TABLE_BYTES / 2**20:,.0f}); keep fewer goal cells per maze, e.g. "
                     "num_goal_cells=32, or fewer mazes"
                 )
-        for maze in self.load_mazes(validate_only=True):
+        loaded = self.load_mazes(validate_only=True)
+        if self.maze == "file":
+            table = mazes.goal_table_bytes(
+                len(loaded), loaded[0].rows, loaded[0].cols, self.num_goal_cells or None
+            )
+            if table > MAX_GOAL_TABLE_BYTES:
+                raise ValueError(
+                    f"{loaded[0].name}: {len(loaded)} maze(s) of {loaded[0].rows} x "
+                    f"{loaded[0].cols} cells need a {table / 2**20:,.0f} MiB geodesic table (at "
+                    f"most {MAX_GOAL_TABLE_BYTES / 2**20:,.0f}); keep fewer goal cells per maze, "
+                    "e.g. num_goal_cells=32, or use a larger map_cell_size"
+                )
+        for maze in loaded:
             mazes.check_slots(maze, self.num_wall_slots)
             width, height = maze.size_m
             if self.goal_radius >= min(width, height) / 2:
@@ -366,7 +403,15 @@ class RobotConfig:
 
     def load_mazes(self, validate_only: bool = False) -> list[mazes.Maze]:
         if self.maze == "file":
-            return [mazes.load_maze(self.maze_file)]
+            files = (
+                [self.maze_file]
+                if self.maze_files is None
+                else occupancy.maze_file_list(self.maze_files)
+            )
+            loaded = [
+                occupancy.load_layout(f, self.map_cell_size, self.unknown_free) for f in files
+            ]
+            return mazes.pad_mazes(loaded)
         num = 1 if validate_only else self.num_layouts
         if self.maze == "random":
             return mazes.random_maze_bank(
@@ -514,6 +559,9 @@ class RobotNav(Environment[RobotState, RobotParams]):
         # slot, parked or not, costs a ray test per laser and a collision test per sub-step
         # (or an MJX geom), e.g. the simple maze needs 6 of the 24
         self.num_wall_slots = max(m.num_boxes for m in maze_list)
+        # each layout's name (its file, for maze files) and map-frame origin, by bank index
+        self.layout_names = tuple(m.name for m in maze_list)
+        self.layout_origins = tuple(m.origin for m in maze_list)
         c = self.config
         self._bank = mazes.stack_mazes(maze_list, self.num_wall_slots, c.num_goal_cells or None)
         self.arena = np.asarray(self._bank.size_m, np.float32)

@@ -35,7 +35,8 @@ cell along the axes, so a robot of radius below that fits at any placement centr
 Built-in layouts, in the spirit of the paper's Fig. 5 (a 10 m square arena): ``SIMPLE`` (a room
 with two wall segments) and ``COMPLEX`` (a maze of 1 m corridors). ``random_maze_bank`` draws
 random layouts (wall segments, then pockets filled), and ``stack_mazes`` batches any list of
-mazes into arrays a JAX reset can index (``MazeBank``).
+mazes into arrays a JAX reset can index (``MazeBank``), once ``pad_mazes`` has brought mazes of
+several sizes to one. ROS map_server occupancy maps (YAML + PGM/PNG) are read by ``occupancy``.
 """
 
 from __future__ import annotations
@@ -163,7 +164,10 @@ class Maze:
     """A maze layout on the host. ``grid`` is read-only bool (rows, cols), True = wall.
 
     ``lines`` gives the text line of each grid row (for error messages); ``None`` means row
-    ``r`` is line ``r + 1``.
+    ``r`` is line ``r + 1``. ``origin`` is the world (x, y) of the grid's lower-left corner in
+    the frame of the map it came from (an occupancy map's ``origin``; ``occupancy``): env
+    coordinates are that frame's minus ``origin`` (``to_env``, ``to_map``). ``kind`` says what
+    the maze was read from, for messages: "maze" (text) or "occupancy map" (an image).
     """
 
     grid: np.ndarray
@@ -172,6 +176,8 @@ class Maze:
     goal: Cell | None = None
     name: str = "<maze>"
     lines: tuple[int, ...] | None = None
+    origin: tuple[float, float] = (0.0, 0.0)
+    kind: str = "maze"
 
     def __post_init__(self) -> None:
         grid = np.array(self.grid, dtype=bool)  # a private copy, frozen below
@@ -192,6 +198,10 @@ class Maze:
             if not (0 <= r < grid.shape[0] and 0 <= c < grid.shape[1]) or grid[r, c]:
                 raise ValueError(f"{self.name}: {label}={cell!r} is not a free cell of the grid")
             object.__setattr__(self, label, (r, c))
+        origin = tuple(self.origin)
+        if len(origin) != 2 or not all(is_number(v) and math.isfinite(v) for v in origin):
+            raise ValueError(f"{self.name}: origin={self.origin!r}: must be finite (x, y) metres")
+        object.__setattr__(self, "origin", (float(origin[0]), float(origin[1])))
         if self.lines is not None and len(self.lines) != grid.shape[0]:
             raise ValueError(
                 f"{self.name}: lines has {len(self.lines)} entries for {grid.shape[0]} rows"
@@ -227,6 +237,14 @@ class Maze:
         col = min(max(int(math.floor(x / self.cell_size)), 0), self.cols - 1)
         row = self.rows - 1 - min(max(int(math.floor(y / self.cell_size)), 0), self.rows - 1)
         return row, col
+
+    def to_env(self, x: float, y: float) -> tuple[float, float]:
+        """Env coordinates of the point (x, y) of the map's frame (minus ``origin``)."""
+        return x - self.origin[0], y - self.origin[1]
+
+    def to_map(self, x: float, y: float) -> tuple[float, float]:
+        """The map frame's coordinates of the env point (x, y) (plus ``origin``)."""
+        return x + self.origin[0], y + self.origin[1]
 
     # -- connectivity -------------------------------------------------------------
     def free_cells(self) -> np.ndarray:
@@ -326,6 +344,14 @@ def check_slots(maze: Maze, num_slots: int) -> None:
     room = num_slots - NUM_BOUNDARY
     if len(boxes) > room:
         r0, c0 = int(boxes[room, 0]), int(boxes[room, 1])
+        if maze.kind != "maze":  # an image has no text lines: name the cell
+            raise MazeFileError(
+                maze.name,
+                f"too many walls for {num_slots} wall slots: the {maze.kind} needs "
+                f"{NUM_BOUNDARY + len(boxes)} boxes ({NUM_BOUNDARY} boundary + {len(boxes)} "
+                f"internal) at {maze.cell_size:g} m cells, the first that does not fit at cell "
+                f"(row {r0}, col {c0}); use more num_wall_slots or a larger map_cell_size",
+            )
         raise MazeFileError(
             maze.name,
             f"too many walls for {num_slots} wall slots: the maze needs {NUM_BOUNDARY + len(boxes)}"
@@ -648,6 +674,33 @@ def random_segments(
 
 
 # ------------------------------------------------------------------------------ batching
+def pad_mazes(mazes: Sequence[Maze]) -> list[Maze]:
+    """The mazes padded with wall cells to the largest rows and cols among them, added along
+    the top and the right so each grid's lower-left corner (its ``origin``) stays where it was;
+    a ``ValueError`` naming two mazes of different cell sizes (a bank has one)."""
+    if len(mazes) == 0:
+        raise ValueError("pad_mazes: no mazes")
+    m0 = mazes[0]
+    for m in mazes[1:]:
+        if m.cell_size != m0.cell_size:
+            raise ValueError(
+                f"{m.name}: {m.cell_size:g} m cells, but {m0.name} has {m0.cell_size:g} m; one "
+                "bank needs one cell size (set map_cell_size for occupancy maps)"
+            )
+    rows, cols = max(m.rows for m in mazes), max(m.cols for m in mazes)
+    out = []
+    for m in mazes:
+        top = rows - m.rows
+        if top == 0 and m.cols == cols:
+            out.append(m)
+            continue
+        grid = np.pad(m.grid, ((top, 0), (0, cols - m.cols)), constant_values=True)
+        start, goal = ((c[0] + top, c[1]) if c is not None else None for c in (m.start, m.goal))
+        lines = None if m.lines is None else (m.lines[0],) * top + m.lines
+        out.append(dataclasses.replace(m, grid=grid, start=start, goal=goal, lines=lines))
+    return out
+
+
 def stack_walls(mazes: Sequence[Maze], num_slots: int) -> Walls:
     """Walls of several mazes with a leading batch axis: [B, num_slots]. Every maze must fit
     (``MazeFileError`` naming the first that does not)."""
