@@ -172,9 +172,9 @@ def _key(trainer: Trainer, keys: jax.Array) -> str:
         "packages": {p: package_version(p) for p in PACKAGES},
         "devices": [d.device_kind for d in jax.devices()],
     }
-    maze_file = config["env_kwargs"].get("maze_file")
-    if maze_file is not None:
-        parts["maze_file"] = hashlib.sha256(Path(maze_file).read_bytes()).hexdigest()
+    files = getattr(trainer.env.config, "input_files", list)()
+    if files:
+        parts["maze_files"] = [hashlib.sha256(Path(f).read_bytes()).hexdigest() for f in files]
     text = json.dumps(parts, sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:32]
 

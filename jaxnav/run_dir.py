@@ -293,12 +293,13 @@ def load_checkpointing(run: Path) -> dict[str, int]:
 
 
 def input_checksums(run: Path, config: TrainConfig) -> dict[str, str]:
-    """SHA-256 of the files a run's training state depends on: its config.json and its maze
-    file (if any); saved with every checkpoint and compared on ``--resume``."""
+    """SHA-256 of the files a run's training state depends on: its config.json and the
+    files its mazes are read from (the env config's ``input_files``: maze files, a map's
+    image); saved with every checkpoint and compared on ``--resume``."""
     sums = {"config.json": sha256_of(run / "config.json")}
-    maze_file = config.env_kwargs.get("maze_file")
-    if maze_file is not None:
-        sums[f"maze file {maze_file}"] = sha256_of(Path(maze_file))
+    env = env_config(config.env, **config.env_kwargs)
+    for f in getattr(env, "input_files", list)():
+        sums[f"maze file {f}"] = sha256_of(Path(f))
     return sums
 
 

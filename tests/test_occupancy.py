@@ -251,3 +251,30 @@ def test_maze_file_and_maze_files_are_exclusive():
         jaxnav.make("RobotMaze-v0", maze_file="b.txt", maze_files=["a.txt"])
     with pytest.raises(ValueError, match=r"^maze_files='maps/': give a maze file exactly when"):
         jaxnav.make("RobotSimple-v0", maze_files="maps/")
+
+
+def test_a_runs_inputs_include_every_maze_file_and_each_maps_image(tmp_path):
+    """What a resumed run and a cached compiled program check for changes: every file of a
+    bank and each map's image, so an edited image is never trained on unnoticed."""
+    import shutil
+
+    from jaxnav.config import TrainConfig
+    from jaxnav.run_dir import input_checksums
+
+    for name in ("floor.yaml", "floor.pgm"):
+        shutil.copy(Path("examples/maps") / name, tmp_path / name)
+    text = tmp_path / "small.txt"
+    text.write_text("cell_size: 0.4\n....\n....\n")
+    files = [str(tmp_path / "floor.yaml"), str(text)]
+    config = TrainConfig.for_env(
+        "RobotMaze-v0", env_kwargs={"maze_files": files, "backend": "kinematic"}
+    )
+    env = jaxnav.make(config.env, **config.env_kwargs)[0]
+    image = str(tmp_path / "floor.pgm")
+    assert env.config.input_files() == [files[0], image, files[1]]
+    (tmp_path / "config.json").write_text("{}")
+    before = input_checksums(tmp_path, config)
+    assert set(before) == {"config.json", *(f"maze file {f}" for f in (*files, image))}
+    (tmp_path / "floor.pgm").write_bytes((tmp_path / "floor.pgm").read_bytes()[:-1] + b"\0")
+    after = input_checksums(tmp_path, config)
+    assert after[f"maze file {image}"] != before[f"maze file {image}"]

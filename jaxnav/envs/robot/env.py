@@ -401,13 +401,27 @@ class RobotConfig:
                     f"{name}={v!r}: must be a pair (low, high) of positive numbers, low <= high"
                 )
 
+    def maze_file_paths(self) -> list[str]:
+        """The maze files of ``maze_file`` or ``maze_files`` (none for generated mazes)."""
+        if self.maze != "file":
+            return []
+        if self.maze_files is None:
+            return [] if self.maze_file is None else [os.fspath(self.maze_file)]
+        return occupancy.maze_file_list(self.maze_files)
+
+    def input_files(self) -> list[str]:
+        """Every file the mazes are read from, a map's image included: what a cached
+        program or a resumed run must find unchanged."""
+        out = []
+        for f in self.maze_file_paths():
+            out.append(f)
+            if occupancy.is_map_file(f):
+                out.append(occupancy.read_map_yaml(f)["image"])
+        return out
+
     def load_mazes(self, validate_only: bool = False) -> list[mazes.Maze]:
         if self.maze == "file":
-            files = (
-                [self.maze_file]
-                if self.maze_files is None
-                else occupancy.maze_file_list(self.maze_files)
-            )
+            files = self.maze_file_paths()
             loaded = [
                 occupancy.load_layout(f, self.map_cell_size, self.unknown_free) for f in files
             ]
