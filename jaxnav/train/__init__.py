@@ -273,9 +273,7 @@ class Trainer:
         rate) on ``loss_fn(params, batch) -> (loss, rows)``, e.g. ``minibatch_loss(ts)``;
         returns the new state and ``rows``. Every update of every algorithm is this step
         (``optimize``)."""
-        params, opt_state, rows = self.optimize(
-            ts.params, ts.opt_state, ts.hparams, batch, loss_fn
-        )
+        params, opt_state, rows = self.optimize(ts.params, ts.opt_state, ts.hparams, batch, loss_fn)
         return ts.replace(params=params, opt_state=opt_state), rows
 
     def optimize(
