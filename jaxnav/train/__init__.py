@@ -420,13 +420,16 @@ class Trainer:
 
     def legacy_checkpoint_layout(
         self, state_like: TrainState
-    ) -> tuple[dict[str, Any], Callable[[dict[str, Any]], TrainState]]:
+    ) -> tuple[dict[str, Any], Callable[[dict[str, Any]], TrainState]] | None:
         """``(layout, upgrade)`` for checkpoints saved before the algorithms kept their own
         state in ``algo_state``: ``layout`` is ``state_like`` as those were saved (a dict of
         ``TrainState``'s fields with ``LEGACY_ALGO_FIELDS`` in place of ``algo_state``,
         None where the algorithm has no such field); ``upgrade`` turns a state restored in
-        it into a ``TrainState``."""
+        it into a ``TrainState``. None for an algorithm whose state that layout cannot hold
+        (one added since: none of its checkpoints was saved so)."""
         algo_like = state_like.algo_state
+        if not set(getattr(algo_like, "__dataclass_fields__", ())) <= set(LEGACY_ALGO_FIELDS):
+            return None
         shared = {
             name: getattr(state_like, name)
             for name in state_like.__dataclass_fields__
