@@ -197,5 +197,6 @@ def test_algo_ppo_trains_from_the_cli_and_its_run_evaluates_and_exports(tmp_path
         jax.random.split(jax.random.key(5), 16), trainer.env_params
     )
     policy = Policy.load(run / "policy.npz")
+    assert policy.metadata["network"]["output"].startswith("the policy's logits")
     want = np.asarray(trainer.greedy_policy(params)(None, obs))
     assert [policy.act(np.asarray(o)) for o in obs] == want.tolist()

@@ -87,6 +87,8 @@ class Algorithm:
 
     # the config field that sets ``minibatch_size``, as messages name it
     minibatch_field = "minibatch_size"
+    # what the network's outputs are, as exported policies describe them
+    outputs = "Q-values"
 
     def __init__(self, loop: Loop):
         self.loop = loop

@@ -124,6 +124,7 @@ class PPO(Algorithm):
     """A sampled policy and a value network over rollouts of many envs."""
 
     gpu_updates_unroll = 16
+    outputs = "the policy's logits"
 
     @classmethod
     def validate(cls, config: Any) -> None:
