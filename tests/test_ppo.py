@@ -175,13 +175,13 @@ PPO_FLAGS = [
     "--total-timesteps", "2048",
     "--log-interval", "1024",
     "--eval-episodes", "20",
-    "--quiet",
 ]  # fmt: skip
 
 
 def test_algo_ppo_trains_from_the_cli_and_its_run_evaluates_and_exports(tmp_path, capsys):
     run = tmp_path / "run"
     assert train_main([*PPO_FLAGS, "--out", str(run)]) == 0
+    assert "train success (sampled)" in capsys.readouterr().out  # not epsilon-greedy
     config = json.loads((run / "config.json").read_text())["config"]
     assert config["algo"] == "ppo" and config["clip_eps"] == 0.2 and config["dueling"] is False
     assert evaluate_main([str(run), "--episodes", "20"]) == 0

@@ -89,6 +89,8 @@ class Algorithm:
     minibatch_field = "minibatch_size"
     # what the network's outputs are, as exported policies describe them
     outputs = "Q-values"
+    # how training acts (``choose_actions``), as progress lines name its episodes
+    acting = "eps-greedy"
 
     def __init__(self, loop: Loop):
         self.loop = loop

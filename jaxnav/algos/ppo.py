@@ -125,6 +125,7 @@ class PPO(Algorithm):
 
     gpu_updates_unroll = 16
     outputs = "the policy's logits"
+    acting = "sampled"
 
     @classmethod
     def validate(cls, config: Any) -> None:
