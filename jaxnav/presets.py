@@ -122,6 +122,8 @@ PPO: dict[str, Any] = {
     "log_interval": 16_384,
     "total_timesteps": 245_760,
 }
+# ROBOT_PQN's envs, rollout and minibatches; on RobotSimple-v0 a quarter of the run (1,024,000
+# steps) reached 0.938 greedy success on 500 episodes (random agent 0.034)
 ROBOT_PPO: dict[str, Any] = {
     **PPO,
     "num_envs": 256,
