@@ -245,10 +245,10 @@ class PPO(Algorithm):
             ts = ts.replace(algo_state=PPOState(critic, critic_opt))
             # the losses as the step's gradients saw them (the parameters before it)
             v = critic_rows["value"]
-            actor = -actor_rows["surrogate"].mean() - c.ent_coef * actor_rows["entropy"].mean()
-            critic = c.vf_coef * value_loss(v, old_value, target, c.clip_eps, c.clip_value)
+            policy = -actor_rows["surrogate"].mean() - c.ent_coef * actor_rows["entropy"].mean()
+            value = c.vf_coef * value_loss(v, old_value, target, c.clip_eps, c.clip_value)
             total = {
-                "loss": total["loss"] + actor + critic,
+                "loss": total["loss"] + policy + value,
                 "q_mean": total["q_mean"] + v.mean(),
                 "q_max": jnp.maximum(total["q_max"], jnp.abs(v).max()),  # NaN stays NaN
             }
