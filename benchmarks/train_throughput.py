@@ -66,10 +66,13 @@ from benchmarks.common import machine_info, machine_text, write_results
 from jaxnav.agents import dqn
 from jaxnav.agents.dqn import COMPUTE_DTYPES
 from jaxnav.cli import one_line, parse_bool, parse_env_arg
-from jaxnav.config import ALGOS, MAX_STEPS, TrainConfig
+from jaxnav.config import MAX_STEPS, TrainConfig
 from jaxnav.train import Trainer, TrainState, jit_training
 
 DEFAULT_OUT = Path("benchmarks/results/train_throughput.json")
+# the algorithms whose update ``fixed_minibatch`` and ``update_program`` time: one network's
+# gradient step on a Q-learning minibatch
+ALGOS = ("dqn", "pqn")
 ROUNDS = 3  # timed calls per program; the median is reported
 ENV_ALONE = "env alone"
 ENV_MIN_S = 0.2  # seconds of a timed env-alone run, at least

@@ -30,7 +30,8 @@ class TrainConfig:
     env: str = "GridMaze-v0"
     env_kwargs: dict[str, Any] = dataclasses.field(default_factory=dict)
     # "dqn": the paper's (dueling, double) DQN with replay and a target network; "pqn":
-    # lambda-returns over rollouts of many envs, no replay, no target network
+    # lambda-returns over rollouts of many envs, no replay, no target network; "ppo": a
+    # policy (the network's outputs are its logits) and a value network over rollouts
     algo: str = "dqn"
     seed: int = 0
     num_seeds: int = 1
@@ -63,7 +64,7 @@ class TrainConfig:
     replay_ratio: float = 8.0
     n_step: int = 1
     target_update_period: int = 2_000  # static, so skipped iterations cost nothing
-    # PQN: each iteration steps every env rollout_length times, then num_epochs passes of
+    # PQN and PPO: each iteration steps every env rollout_length times, then num_epochs passes of
     # num_minibatches gradient steps over those num_envs * rollout_length transitions
     rollout_length: int = 1
     num_epochs: int = 1
@@ -78,7 +79,13 @@ class TrainConfig:
     eps_start: float = 1.0
     eps_end: float = 0.05
     eps_decay_steps: int = 100_000
-    td_lambda: float = 0.65  # PQN's lambda-returns
+    td_lambda: float = 0.65  # PQN's lambda-returns, PPO's GAE (the same lambda)
+    # PPO: the ratio's clip range (and the value's, with clip_value), the value loss's and
+    # the policy entropy bonus's weights
+    clip_eps: float = 0.2
+    vf_coef: float = 0.5
+    ent_coef: float = 0.01
+    clip_value: bool = True
     # bookkeeping
     log_interval: int = 16_000
     eval_episodes: int = 1000
@@ -233,6 +240,9 @@ class TrainConfig:
             "eps_start": (0.0, 1.0),
             "eps_end": (0.0, 1.0),
             "td_lambda": (0.0, 1.0),
+            "clip_eps": (0.0, 1.0),
+            "vf_coef": (0.0, 1e3),
+            "ent_coef": (0.0, 1e3),
             "replay_ratio": (0.0, float(MAX_UPDATES * 2**20)),
         }
         for name, (lo, hi) in floats.items():
@@ -240,7 +250,7 @@ class TrainConfig:
             ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
             if not ok or not lo <= v <= hi:
                 raise ValueError(f"{name}={v!r}: must be a number in [{lo}, {hi}]")
-        positive = ("lr", "max_grad_norm", "tau", "replay_ratio")
+        positive = ("lr", "max_grad_norm", "tau", "replay_ratio", "clip_eps")
         bad = next((n for n in positive if getattr(self, n) <= 0), None)
         if bad is not None:
             raise ValueError(f"{bad}={getattr(self, bad)!r}: must be positive")
@@ -251,7 +261,7 @@ class TrainConfig:
             raise ValueError(
                 f"hidden_sizes={self.hidden_sizes!r}: must be one or more integers in [1, 65536]"
             )
-        for name in ("dueling", "double", "layer_norm", "fused_layer_norm"):
+        for name in ("dueling", "double", "layer_norm", "fused_layer_norm", "clip_value"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"{name}={getattr(self, name)!r}: must be true or false")
         for name, choices in (("algo", ALGOS), ("compute_dtype", COMPUTE_DTYPES)):

@@ -278,7 +278,8 @@ def policy_metadata(trainer: Any, source: dict[str, Any] | None = None) -> dict[
         "num_actions": int(net.num_actions),
         "trained_compute_dtype": net.compute_dtype,
         "input": "float32 [batch, obs_size]: the env's observation as float32",
-        "output": "Q-values [batch, num_actions]; the policy takes the first largest",
+        "output": f"{trainer.algorithm.outputs} [batch, num_actions]; the policy takes the "
+        "first largest",
     }
     env_config = getattr(env, "config", None)
     return _jsonable(

@@ -104,7 +104,11 @@ class FormerTrainState:
     diverged_at: Any
 
 
-@pytest.mark.parametrize("name", sorted(ALGOS))
+# the algorithms whose checkpoints were saved in that layout
+FORMER_ALGOS = ("dqn", "pqn")
+
+
+@pytest.mark.parametrize("name", FORMER_ALGOS)
 def test_a_checkpoint_of_the_former_state_layout_restores_as_saved(name, tmp_path):
     trainer = Trainer(dataclasses.replace(TINY_TRAIN, algo=name))
     state = jax.device_get(jax.jit(jax.vmap(trainer.init))(jax.random.split(jax.random.key(3), 2)))
@@ -136,3 +140,23 @@ def test_a_checkpoint_of_the_former_state_layout_restores_as_saved(name, tmp_pat
     for a, b in zip(jax.tree.leaves(restored), jax.tree.leaves(state), strict=True):
         np.testing.assert_array_equal(as_data(a), as_data(b))
     np.testing.assert_array_equal(restored_metrics["loss"], metrics["loss"])
+
+
+@pytest.mark.parametrize("name", sorted(set(ALGOS) - set(FORMER_ALGOS)))
+def test_an_algorithm_added_since_has_no_former_layout_to_try(name, tmp_path):
+    """Its state has fields that layout never held: a checkpoint is read in today's only."""
+    trainer = Trainer(dataclasses.replace(TINY_TRAIN, algo=name))
+    state = jax.device_get(jax.jit(jax.vmap(trainer.init))(jax.random.split(jax.random.key(3), 2)))
+    like = jax.eval_shape(lambda: state)
+    assert trainer.legacy_checkpoint_layout(like) is None
+    metrics = {"loss": np.arange(3, dtype=np.float32)[None]}
+    saving = Checkpoints(tmp_path / "checkpoints", keep=1)
+    saving.save(1, state, metrics, {"seconds": {}})
+    saving.close()
+    restoring = Checkpoints(tmp_path / "checkpoints", keep=1)
+    _, restored, _, _ = restoring.restore(like, metrics, legacy=None)
+    restoring.close()
+    as_data = lambda x: jax.random.key_data(x) if is_key(x) else x  # noqa: E731
+    assert jax.tree.structure(restored) == jax.tree.structure(state)
+    for a, b in zip(jax.tree.leaves(restored), jax.tree.leaves(state), strict=True):
+        np.testing.assert_array_equal(as_data(a), as_data(b))

@@ -164,7 +164,11 @@ def test_step_counts_out_of_range_are_still_refused(flags, named, tmp_path, caps
 
 @pytest.mark.parametrize(
     ("env", "algo"),
-    [(e, a) for e in ("GridMaze-v0", "RobotSimple-v0", "RobotNav-v0") for a in ("dqn", "pqn")],
+    [
+        (e, a)
+        for e in ("GridMaze-v0", "RobotSimple-v0", "RobotNav-v0")
+        for a in ("dqn", "pqn", "ppo")
+    ],
 )
 def test_presets_train_whole_logging_intervals(env, algo):
     from jaxnav.config import TrainConfig

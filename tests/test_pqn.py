@@ -369,7 +369,7 @@ def test_bfloat16_pqn_run_trains_without_divergence():
     [
         (dict(algo="pqn", num_envs=4, rollout_length=2, num_minibatches=3), "num_minibatches=3"),
         (dict(algo="dqn", rollout_length=2), "rollout_length=2"),
-        (dict(algo="ppo"), "algo='ppo'"),
+        (dict(algo="sac"), "algo='sac'"),
         (dict(algo="pqn", compute_dtype="float16"), "compute_dtype='float16'"),
     ],
 )
@@ -380,9 +380,9 @@ def test_bad_pqn_settings_are_refused_naming_the_value(overrides, named):
 
 def test_cli_refuses_an_unknown_algorithm_in_one_line(tmp_path, capsys):
     out = tmp_path / "run"
-    assert train_main(["--algo", "ppo", "--out", str(out)]) == 2
+    assert train_main(["--algo", "sac", "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip()
-    assert err.count("\n") == 0 and "ppo" in err and "Traceback" not in err
+    assert err.count("\n") == 0 and "sac" in err and "Traceback" not in err
     assert "dqn" in err and "pqn" in err  # says what would do
     assert not out.exists()
 

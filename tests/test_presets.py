@@ -78,9 +78,9 @@ def test_the_generalists_pqn_preset_and_the_robot_dqn_one():
     "call, named",
     [
         (lambda: train_defaults("Nope-v0"), "unknown env id 'Nope-v0'; valid ids: GridMaze-v0"),
-        (lambda: train_defaults("GridMaze-v0", "ppo"), "algo='ppo': must be one of dqn, pqn"),
+        (lambda: train_defaults("GridMaze-v0", "sac"), "algo='sac': must be one of dqn, pqn, ppo"),
         (lambda: TrainConfig.for_env("Nope-v0"), "unknown env id 'Nope-v0'"),
-        (lambda: TrainConfig.for_env("RobotNav-v0", algo="ppo"), "algo='ppo'"),
+        (lambda: TrainConfig.for_env("RobotNav-v0", algo="sac"), "algo='sac'"),
     ],
 )
 def test_unknown_env_or_algorithm_is_a_one_line_error(call, named):

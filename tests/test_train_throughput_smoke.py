@@ -85,7 +85,7 @@ def test_train_throughput_smoke(tmp_path: Path) -> None:
         ["--iterations", "0"],
         ["--hidden-sizes", ""],
         ["--num-envs", "4,x"],
-        ["--algos", "dqn,ppo"],
+        ["--algos", "dqn,sac"],
         ["--env", "NoSuchEnv-v0"],
         ["--env-arg", "size=-3"],
         ["--num-envs", "3", "--algos", "pqn", "--num-minibatches", "5", "--rollout-length", "1"],

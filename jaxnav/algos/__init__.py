@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from jaxnav.algos.base import Algorithm
 from jaxnav.algos.dqn import DQN
+from jaxnav.algos.ppo import PPO
 from jaxnav.algos.pqn import PQN
 
-ALGOS: dict[str, type[Algorithm]] = {"dqn": DQN, "pqn": PQN}
+ALGOS: dict[str, type[Algorithm]] = {"dqn": DQN, "pqn": PQN, "ppo": PPO}

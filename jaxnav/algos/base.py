@@ -13,6 +13,7 @@ from collections.abc import Callable
 from typing import Any, Protocol
 
 import jax
+import jax.numpy as jnp
 from flax import struct
 
 
@@ -26,7 +27,7 @@ class Transitions:
     next_obs: jax.Array  # the final observation where the episode ended
     terminated: jax.Array
     done: jax.Array
-    value: jax.Array  # max_a Q(obs, a) of the acting pass
+    value: jax.Array  # the largest output of the acting pass (max_a Q(obs, a))
 
 
 @struct.dataclass
@@ -57,7 +58,7 @@ class Loop(Protocol):
     config: Any  # ``jaxnav.config.TrainConfig``
     env: Any
     env_params: Any
-    network: Any  # ``agents.dqn.QNetwork``
+    network: Any  # ``agents.dqn.QNetwork``: Q-values, or a policy's logits
     learner_network: Any  # the same, as the training program runs it (over devices)
     obs_size: int
 
@@ -70,6 +71,12 @@ class Loop(Protocol):
         self, ts: TrainState, batch: Any, loss_fn: LossFn
     ) -> tuple[TrainState, dict]: ...
 
+    def optimize(
+        self, params: Any, opt_state: Any, hp: Any, batch: Any, loss_fn: LossFn
+    ) -> tuple[Any, Any, dict]: ...
+
+    def optimizer(self, hp: Any) -> Any: ...  # ``optax.GradientTransformation``
+
     def epsilon(self, hp: Any, env_steps: jax.Array) -> jax.Array: ...
 
 
@@ -80,6 +87,10 @@ class Algorithm:
 
     # the config field that sets ``minibatch_size``, as messages name it
     minibatch_field = "minibatch_size"
+    # what the network's outputs are, as exported policies describe them
+    outputs = "Q-values"
+    # how training acts (``choose_actions``), as progress lines name its episodes
+    acting = "eps-greedy"
 
     def __init__(self, loop: Loop):
         self.loop = loop
@@ -118,10 +129,23 @@ class Algorithm:
         raise NotImplementedError
 
     # -- the training program --------------------------------------------------------
-    def init_state(self, params: Any) -> Any:
+    def init_state(self, params: Any, key: jax.Array, hparams: Any) -> Any:
         """The algorithm's part of a fresh ``TrainState`` (``algo_state``) for the network's
-        initial ``params``; None where it keeps nothing of its own."""
+        initial ``params``, with ``key`` for its own random choices (e.g. a second network's
+        initialization) and the run's ``hparams``; None where it keeps nothing of its own."""
         return None
+
+    def choose_actions(
+        self, outputs: jax.Array, keys: tuple[jax.Array, jax.Array], eps: jax.Array
+    ) -> jax.Array:
+        """The actions [N] of an acting pass's ``outputs`` [N, num_actions]
+        (``Loop.env_step``): by default epsilon-greedy in the Q-values, a uniformly random
+        action (key ``keys[0]``) with probability ``eps`` (key ``keys[1]``)."""
+        k_act, k_eps = keys
+        n, num_actions = outputs.shape
+        explore = jax.random.uniform(k_eps, (n,)) < eps
+        random_action = jax.random.randint(k_act, (n,), 0, num_actions)
+        return jnp.where(explore, random_action, jnp.argmax(outputs, axis=-1))
 
     def state_specs(self, algo_state: Any, per_seed: Any) -> Any:
         """``PartitionSpec``s of a seed-batched ``algo_state`` (``jaxnav.sharding``): by

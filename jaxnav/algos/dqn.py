@@ -90,7 +90,7 @@ class DQN(Algorithm):
     def kept_sizes(cls, config: Any) -> str:
         return f"buffer_size={config.buffer_size}"
 
-    def init_state(self, params: Any) -> DQNState:
+    def init_state(self, params: Any, key: jax.Array, hparams: Any) -> DQNState:
         c, loop = self.config, self.loop
         obs_dtype = loop.env.observation_space().dtype
         buffer = dqn.buffer_init(c.buffer_rows, c.num_envs, loop.obs_size, obs_dtype)

@@ -219,7 +219,9 @@ class Trainer:
         """Linear decay from ``lr`` to ``lr_end`` over the run's gradient steps."""
         return hp.lr + (hp.lr_end - hp.lr) * jnp.minimum(updates / self.total_updates, 1.0)
 
-    def _optimizer(self, hp: HParams) -> optax.GradientTransformation:
+    def optimizer(self, hp: HParams) -> optax.GradientTransformation:
+        """The optimizer of every network training updates: global-norm gradient clipping to
+        ``max_grad_norm``, then Adam or SGD at the scheduled learning rate."""
         schedule = partial(self.learning_rate, hp)
         opt = optax.adam(schedule) if self.config.optimizer == "adam" else optax.sgd(schedule)
         # one flat vector instead of a leaf per layer: far fewer small kernels per update, which
@@ -235,13 +237,15 @@ class Trainer:
         hp = self.default_hparams() if hparams is None else hparams
         k_net, k_env, k_run = jax.random.split(key, 3)
         params = self.network.init(k_net, jnp.zeros((1, self.obs_size)))
+        # the algorithm's key derived, not split off: the runs' other keys stay as they were
+        k_algo = jax.random.fold_in(k_net, 1)
         obs, env_state = jax.vmap(self.env.reset, in_axes=(0, None))(
             jax.random.split(k_env, c.num_envs), self.env_params
         )
         return TrainState(
             params=params,
-            opt_state=self._optimizer(hp).init(params),
-            algo_state=self.algorithm.init_state(params),
+            opt_state=self.optimizer(hp).init(params),
+            algo_state=self.algorithm.init_state(params, k_algo, hp),
             env_state=env_state,
             obs=obs,
             episode_return=jnp.zeros(c.num_envs),
@@ -267,14 +271,23 @@ class Trainer:
     ) -> tuple[TrainState, dict]:
         """One optimizer step (gradient clipping, then Adam or SGD at the scheduled learning
         rate) on ``loss_fn(params, batch) -> (loss, rows)``, e.g. ``minibatch_loss(ts)``;
-        returns the new state and ``rows``. Every update of every algorithm is this step."""
+        returns the new state and ``rows``. Every update of every algorithm is this step
+        (``optimize``)."""
+        params, opt_state, rows = self.optimize(ts.params, ts.opt_state, ts.hparams, batch, loss_fn)
+        return ts.replace(params=params, opt_state=opt_state), rows
+
+    def optimize(
+        self, params: Any, opt_state: Any, hp: HParams, batch: Any, loss_fn: LossFn
+    ) -> tuple[Any, Any, dict]:
+        """``gradient_step`` of any network's ``params`` and their ``optimizer(hp)`` state
+        (the policy's, or a second network an algorithm keeps in ``algo_state``): the new
+        params, optimizer state and ``loss_fn``'s rows."""
         # data parallel over a seed's devices: each computes the loss and gradient of its part
         # of the batch, and XLA sums the parts (the gradient averaging of ``sharded``)
         batch = jax.lax.with_sharding_constraint(batch, NamedSharding(self.mesh, P(ENVS)))
-        grads, rows = jax.grad(loss_fn, has_aux=True)(ts.params, batch)
-        updates, opt_state = self._optimizer(ts.hparams).update(grads, ts.opt_state, ts.params)
-        params = optax.apply_updates(ts.params, updates)
-        return ts.replace(params=params, opt_state=opt_state), rows
+        grads, rows = jax.grad(loss_fn, has_aux=True)(params, batch)
+        updates, opt_state = self.optimizer(hp).update(grads, opt_state, params)
+        return optax.apply_updates(params, updates), opt_state, rows
 
     def env_step(
         self,
@@ -283,16 +296,16 @@ class Trainer:
         eps: jax.Array,
         acting_params: Any,
     ) -> tuple[TrainState, tuple[Transitions, jax.Array, dict]]:
-        """One epsilon-greedy step of every env, acting with ``acting_params`` (``ts.params``,
-        or them as ``QNetwork.compute_params`` casts them): the new state, the transitions,
+        """One step of every env, acting with ``acting_params`` (``ts.params``, or them as
+        ``QNetwork.compute_params`` casts them) as the algorithm chooses
+        (``Algorithm.choose_actions``: epsilon-greedy with ``eps``, or sampling a policy's
+        logits): the new state, the transitions,
         whether the acting Q-values were finite, and episode statistics (per env: summed
         after the rollout, once an iteration)."""
         c = self.config
         k_act, k_eps, k_step = keys
         q = self.learner_network.apply(acting_params, ts.obs)
-        explore = jax.random.uniform(k_eps, (c.num_envs,)) < eps
-        random_action = jax.random.randint(k_act, (c.num_envs,), 0, self.env.num_actions)
-        action = jnp.where(explore, random_action, jnp.argmax(q, axis=-1))
+        action = self.algorithm.choose_actions(q, (k_act, k_eps), eps)
         obs, env_state, reward, terminated, truncated, info = jax.vmap(
             self.env.step, in_axes=(0, 0, 0, None)
         )(jax.random.split(k_step, c.num_envs), ts.env_state, action, self.env_params)
@@ -407,13 +420,16 @@ class Trainer:
 
     def legacy_checkpoint_layout(
         self, state_like: TrainState
-    ) -> tuple[dict[str, Any], Callable[[dict[str, Any]], TrainState]]:
+    ) -> tuple[dict[str, Any], Callable[[dict[str, Any]], TrainState]] | None:
         """``(layout, upgrade)`` for checkpoints saved before the algorithms kept their own
         state in ``algo_state``: ``layout`` is ``state_like`` as those were saved (a dict of
         ``TrainState``'s fields with ``LEGACY_ALGO_FIELDS`` in place of ``algo_state``,
         None where the algorithm has no such field); ``upgrade`` turns a state restored in
-        it into a ``TrainState``."""
+        it into a ``TrainState``. None for an algorithm whose state that layout cannot hold
+        (one added since: none of its checkpoints was saved so)."""
         algo_like = state_like.algo_state
+        if not set(getattr(algo_like, "__dataclass_fields__", ())) <= set(LEGACY_ALGO_FIELDS):
+            return None
         shared = {
             name: getattr(state_like, name)
             for name in state_like.__dataclass_fields__

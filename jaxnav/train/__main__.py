@@ -56,16 +56,21 @@ HELP = {
     "hidden_sizes": "MLP widths, comma separated (the paper's: 512,256,128,64)",
     "dueling": "dueling heads V + A - mean(A) (paper eq. 7)",
     "double": "double-DQN targets (paper eq. 6)",
-    "algo": "dqn (the paper's: replay and a target network) or pqn (lambda-returns over "
-    "rollouts of many envs, no replay)",
+    "algo": "dqn (the paper's: replay and a target network), pqn (lambda-returns over "
+    "rollouts of many envs, no replay) or ppo (a sampled policy and a value network over "
+    "rollouts)",
     "layer_norm": "LayerNorm before each hidden ReLU (PQN's network)",
     "fused_layer_norm": "LayerNorm and ReLU as one op with a float32 gradient: Pallas kernels "
     "on a GPU (on each device's rows over several), jnp on a CPU",
     "compute_dtype": "float32 or bfloat16 matrix products in the hidden layers",
-    "rollout_length": "pqn: env steps of every env per iteration",
-    "num_epochs": "pqn: passes over each rollout",
-    "num_minibatches": "pqn: gradient steps per pass over a rollout",
-    "td_lambda": "pqn: lambda of the lambda-returns",
+    "rollout_length": "pqn, ppo: env steps of every env per iteration",
+    "num_epochs": "pqn, ppo: passes over each rollout",
+    "num_minibatches": "pqn, ppo: gradient steps per pass over a rollout",
+    "td_lambda": "pqn: lambda of the lambda-returns; ppo: of GAE",
+    "clip_eps": "ppo: clip range of the probability ratio (and of the value, with clip_value)",
+    "vf_coef": "ppo: weight of the value loss",
+    "ent_coef": "ppo: weight of the policy's entropy bonus",
+    "clip_value": "ppo: clip the value's change from the rollout's as the ratio is clipped",
     "loss": "huber or mse",
     "buffer_size": "replay capacity in transitions",
     "batch_size": "transitions per gradient step",
@@ -119,8 +124,8 @@ class _DefaultsShown(argparse.ArgumentDefaultsHelpFormatter):
 def parser() -> argparse.ArgumentParser:
     p = Parser(
         prog="python -m jaxnav.train",
-        description="Train a (dueling, double) DQN or a PQN; all seeds and the whole run are one "
-        "program.",
+        description="Train a (dueling, double) DQN, a PQN or a PPO policy; all seeds and the "
+        "whole run are one program.",
         formatter_class=_DefaultsShown,
     )
     defaults = TrainConfig()
@@ -129,6 +134,9 @@ def parser() -> argparse.ArgumentParser:
         "--algo pqn": train_defaults("GridMaze-v0", "pqn"),
         "--algo pqn on robot envs": train_defaults("RobotSimple-v0", "pqn"),
         "--algo pqn on RobotNav-v0": train_defaults("RobotNav-v0", "pqn"),
+        "--algo ppo": train_defaults("GridMaze-v0", "ppo"),
+        "--algo ppo on robot envs": train_defaults("RobotSimple-v0", "ppo"),
+        "--algo ppo on RobotNav-v0": train_defaults("RobotNav-v0", "ppo"),
         "GridMaze-Random-v0": train_defaults("GridMaze-Random-v0"),  # its default: pqn
     }
     for f in dataclasses.fields(TrainConfig):
