@@ -1,6 +1,8 @@
 """What every command line shares: one-line errors and the env override flags.
 
 Bad input of any kind is one line on stderr naming the value, exit code 2, nothing written.
+A write the machine refuses (no space left, a read-only file system, permission denied, an I/O
+error) is one line naming the path and the remedy, exit code 4, nothing partial left.
 Each command parses its own flags in its own module and calls the library:
 ``python -m jaxnav.train`` (``jaxnav/train/__main__.py``, over ``jaxnav.runner``),
 ``python -m jaxnav.evaluate`` (``jaxnav/evaluate/__main__.py``), ``python -m jaxnav.render``
@@ -15,6 +17,8 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
+
+from jaxnav.safe_io import EXIT_WRITE_FAULT, WriteFault
 
 
 class UsageError(Exception):
@@ -92,6 +96,13 @@ def fail(prog: str, message: str) -> int:
     """Print ``prog: error: message`` as one line on stderr; returns the exit code, 2."""
     print(f"{prog}: error: {one_line(message)}", file=sys.stderr)
     return 2
+
+
+def write_failed(prog: str, error: WriteFault) -> int:
+    """Print a write the machine refused (a full disk, a read-only file system) as one line;
+    returns its exit code, ``EXIT_WRITE_FAULT`` (4)."""
+    print(f"{prog}: error: {one_line(str(error))}", file=sys.stderr)
+    return EXIT_WRITE_FAULT
 
 
 def parse_bool(text: str) -> bool:

@@ -28,7 +28,7 @@ from jaxnav.checkpoints import sha256_of, this_process_only
 from jaxnav.config import TrainConfig, upgrade_saved
 from jaxnav.host import host_info, package_version
 from jaxnav.registration import env_config
-from jaxnav.safe_io import remove_quietly
+from jaxnav.safe_io import atomic_output
 from jaxnav.train import Trainer
 
 PACKAGES = ("jaxnav", "jax", "jaxlib", "flax", "optax", "chex", "orbax-checkpoint", "mujoco-mjx")
@@ -190,27 +190,21 @@ def config_from_json(d: dict[str, Any]) -> TrainConfig:
 
 
 def write_json(path: Path, obj: Any) -> None:
-    """Write atomically: a crash leaves the old file or the new one, never half of one."""
-    tmp = path.with_name(path.name + ".tmp")
-    try:
+    """Write atomically: a crash leaves the old file or the new one, never half of one
+    (``WriteFault`` for a full disk and the like)."""
+    with atomic_output(path) as tmp:
         tmp.write_text(json.dumps(obj, indent=2) + "\n")
-        os.replace(tmp, path)
-    except BaseException:  # a full disk, a directory at ``path``: no stray .tmp
-        remove_quietly(tmp)
-        raise
 
 
 def write_metrics_csv(path: Path, metrics: dict[str, np.ndarray], seeds: list[int]) -> None:
     """One row per (seed, logging interval); ``metrics`` arrays are [num_seeds, num_logs]."""
     names = list(metrics)
-    tmp = path.with_name(path.name + ".tmp")
-    with tmp.open("w", newline="") as f:
+    with atomic_output(path) as tmp, tmp.open("w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["seed", *names])
         for i, seed in enumerate(seeds):
             for t in range(np.asarray(metrics[names[0]]).shape[1]):
                 w.writerow([seed, *(_fmt(metrics[n][i, t]) for n in names)])
-    os.replace(tmp, path)
 
 
 def _fmt(v: Any) -> str:

@@ -6,6 +6,7 @@ Tiny configs: 4 logging intervals of 32 env steps."""
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import json
 import os
@@ -13,6 +14,7 @@ import random
 import stat
 import subprocess
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -422,6 +424,56 @@ def test_evaluate_render_and_export_refuse_outputs_that_are_not_regular_files(
             assert nodes(tmp_path) == before, kind  # nothing replaced
         assert (tmp_path / ext[1:] / "kept" / "file").read_text() == "kept"
     assert not list(trained.glob("*.tmp")) and not list(tmp_path.glob(".*partial*"))
+
+
+# ------------------------------------------------------------------ a disk that refuses writes
+@contextlib.contextmanager
+def small_filesystem(where: Path, state: str) -> Iterator[Path]:
+    """A real 256 KiB tmpfs at ``where``: ``full`` (a file fills every block) or ``read-only``
+    (remounted so); root only, else the test is skipped."""
+    where.mkdir()
+    mount = ["mount", "-t", "tmpfs", "-o", "size=256k", "tmpfs", str(where)]
+    if subprocess.run(mount, capture_output=True).returncode != 0:
+        pytest.skip("mounting a tmpfs needs root")
+    try:
+        if state == "full":
+            fd = os.open(where / "filler", os.O_WRONLY | os.O_CREAT)
+            try:
+                while True:
+                    os.write(fd, b"\0" * 4096)
+            except OSError as e:
+                assert e.errno == errno.ENOSPC
+            finally:
+                os.close(fd)
+        else:
+            remount = ["mount", "-o", "remount,ro", str(where)]
+            subprocess.run(remount, check=True, capture_output=True)
+        yield where
+    finally:
+        subprocess.run(["umount", str(where)], check=True)
+
+
+@pytest.mark.parametrize("state", ["full", "read-only"])
+def test_evaluate_render_and_export_on_a_disk_that_refuses_writes_are_one_line(
+    state, trained, tmp_path, capsys
+):
+    from jaxnav.evaluate.__main__ import main as evaluate_main
+    from jaxnav.export import main as export_main
+    from jaxnav.render import main as render_main
+
+    commands = {
+        "eval.json": lambda out: evaluate_main([str(trained), "--out", out, "--episodes", "1"]),
+        "traj.png": lambda out: render_main([str(trained), "--out", out, "--episodes", "1"]),
+        "traj.gif": lambda out: render_main([str(trained), "--out", out, "--episodes", "1"]),
+        "policy.npz": lambda out: export_main([str(trained), "--out", out]),
+    }
+    why = {"full": "no space left on device", "read-only": "read-only file system"}[state]
+    with small_filesystem(tmp_path / "disk", state) as disk:
+        before = nodes(disk)
+        for name, command in commands.items():
+            err = one_line_error(capsys, 4, command(str(disk / name)))
+            assert err.startswith("jaxnav.") and f"cannot write {disk / name}: {why}" in err
+            assert nodes(disk) == before, name  # nothing partial left behind
 
 
 # ------------------------------------------------------------------ hostile inputs
