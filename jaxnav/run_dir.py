@@ -24,7 +24,7 @@ import numpy as np
 import orbax.checkpoint as ocp
 
 from jaxnav.agents import dqn
-from jaxnav.checkpoints import sha256_of, this_process_only
+from jaxnav.checkpoints import manifest_damage, sha256_of, this_process_only, write_manifest
 from jaxnav.config import TrainConfig, upgrade_saved
 from jaxnav.host import host_info, package_version
 from jaxnav.registration import env_config
@@ -213,9 +213,11 @@ def _fmt(v: Any) -> str:
 
 
 def save_params(run: Path, params: Any) -> None:
-    """Final network parameters (all seeds stacked on axis 0) as an orbax checkpoint."""
+    """Final network parameters (all seeds stacked on axis 0) as an orbax checkpoint, with
+    the checksum of each of its files (``checkpoints.MANIFEST``), verified on loading."""
     with ocp.StandardCheckpointer(multiprocessing_options=this_process_only()) as ckpt:
         ckpt.save((run / "params").absolute(), jax.device_get(params))
+    write_manifest(run / "params")
 
 
 def load_params(run: Path, like: Any) -> Any:
@@ -225,10 +227,33 @@ def load_params(run: Path, like: Any) -> Any:
     first (a config.json edited after training, e.g. its hidden_sizes)."""
     abstract = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype), like)
     path = (run / "params").absolute()
+    damage = manifest_damage(path)  # None also for runs saved before params/ had checksums
+    if damage is not None:
+        raise ValueError(
+            f"{run / 'params'}: damaged, {damage}; restore the run from a backup or train "
+            "it again"
+        )
     with ocp.StandardCheckpointer(multiprocessing_options=this_process_only()) as ckpt:
-        saved = ckpt.metadata(path).item_metadata
+        try:
+            saved = ckpt.metadata(path).item_metadata
+        except (KeyError, ValueError, TypeError, OSError) as e:  # orbax's, for a bad _METADATA
+            raise unreadable_params(run, e) from None
+        if not jax.tree.leaves(saved):  # orbax logs a bad _METADATA and returns nothing
+            raise unreadable_params(run, ValueError("_METADATA lists no arrays"))
         _check_saved_params(run, saved, abstract)
-        return ckpt.restore(path, abstract)
+        try:
+            return ckpt.restore(path, abstract)
+        except (KeyError, ValueError, TypeError, OSError) as e:  # damage in a run saved before
+            raise unreadable_params(run, e) from None
+
+
+def unreadable_params(run: Path, error: Exception) -> ValueError:
+    """The one-line error for a run's params/ that orbax cannot read."""
+    what = " ".join(str(error).split())[:200]  # orbax's messages span lines
+    return ValueError(
+        f"{run / 'params'}: unreadable ({type(error).__name__}: {what}); restore the run from "
+        "a backup or train it again"
+    )
 
 
 def _check_saved_params(run: Path, saved: Any, abstract: Any) -> None:

@@ -11,6 +11,7 @@ import errno
 import json
 import os
 import random
+import shutil
 import stat
 import subprocess
 import sys
@@ -267,8 +268,9 @@ def interrupted_after(out: Path, monkeypatch, last: int) -> None:
     monkeypatch.setattr(checkpoints.Checkpoints, "save", save)
 
 
-def flip_a_byte(step_dir: Path, rng: random.Random) -> Path:
-    files = [p for p in sorted(step_dir.rglob("*")) if p.is_file()]
+def flip_a_byte(step_dir: Path, rng: random.Random, only: bool = False) -> Path:
+    """Flip one bit of a file chosen in ``step_dir`` (``only``: of ``step_dir``, a file)."""
+    files = [step_dir] if only else [p for p in sorted(step_dir.rglob("*")) if p.is_file()]
     path = rng.choice(files)
     data = bytearray(path.read_bytes())
     if data:
@@ -424,6 +426,49 @@ def test_evaluate_render_and_export_refuse_outputs_that_are_not_regular_files(
             assert nodes(tmp_path) == before, kind  # nothing replaced
         assert (tmp_path / ext[1:] / "kept" / "file").read_text() == "kept"
     assert not list(trained.glob("*.tmp")) and not list(tmp_path.glob(".*partial*"))
+
+
+# ------------------------------------------------------------------ a finished run's params/
+def test_a_flipped_byte_in_any_file_of_params_is_refused_naming_the_file(
+    trained, tmp_path, capsys
+):
+    from jaxnav.evaluate.__main__ import main as evaluate_main
+    from jaxnav.export import main as export_main
+
+    files = [p.relative_to(trained) for p in tree(trained / "params") if p.is_file()]
+    assert f"params/{checkpoints.MANIFEST}" in map(str, files)
+    for i, name in enumerate(files):
+        run = tmp_path / f"run{i}"
+        shutil.copytree(trained, run)
+        flip_a_byte(run / name, random.Random(i), only=True)
+        err = one_line_error(capsys, 2, export_main([str(run)]))
+        assert f"{run / 'params'}: damaged" in err, err
+        if name.name != checkpoints.MANIFEST:
+            assert f"{name.relative_to('params')} differs from its checksum" in err, err
+        assert not (run / "policy.npz").exists()
+    err = one_line_error(capsys, 2, evaluate_main([str(run), "--episodes", "1"]))
+    assert f"{run / 'params'}: damaged" in err and not (run / "eval.json").exists()
+
+
+@pytest.mark.parametrize("damage", ["truncated", "not_json", "no_tree"])
+def test_a_damaged_metadata_of_a_run_saved_without_checksums_is_one_line(
+    damage, trained, tmp_path, capsys
+):
+    from jaxnav.export import main as export_main
+
+    run = tmp_path / "run"
+    shutil.copytree(trained, run)
+    (run / "params" / checkpoints.MANIFEST).unlink()  # as runs were saved before
+    assert export_main([str(run), "--out", str(tmp_path / "old.npz")]) == 0  # still loads
+    capsys.readouterr()
+    metadata = run / "params" / "_METADATA"
+    text = metadata.read_text()
+    metadata.write_text(
+        {"truncated": text[: len(text) // 2], "not_json": "\x00garbage", "no_tree": "{}"}[damage]
+    )
+    err = one_line_error(capsys, 2, export_main([str(run)]))
+    assert f"{run / 'params'}: unreadable" in err and "config.json" not in err, err
+    assert not (run / "policy.npz").exists()
 
 
 # ------------------------------------------------------------------ a disk that refuses writes
