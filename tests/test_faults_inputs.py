@@ -51,6 +51,35 @@ def test_maze_and_bank_cell_size_out_of_range_is_refused(cell_size):
         mazes.random_maze_bank(1, rows=4, cols=4, cell_size=cell_size)
 
 
+def open_maze_file(path: Path, side: int) -> Path:
+    """A ``side`` x ``side`` maze file without walls, S and G in opposite corners."""
+    rows = ["." * side for _ in range(side)]
+    rows[0], rows[-1] = "S" + rows[0][1:], rows[-1][:-1] + "G"
+    path.write_text("\n".join(rows) + "\n")
+    return path
+
+
+def test_a_maze_file_too_large_for_its_geodesic_table_is_refused_before_it_is_built(
+    tmp_path, capsys
+):
+    """200 x 200 cells, a table from every cell: 3 GiB (the env built for minutes before).
+    152 x 152 is the largest square under the 1 GiB limit; num_goal_cells lifts it."""
+    big = open_maze_file(tmp_path / "big.txt", 200)
+    with pytest.raises(ValueError, match=r"200 x 200 cells .* 3,052 MiB \(at most 1,024\)"):
+        registration.env_config("RobotMaze-v0", maze_file=str(big))
+    with pytest.raises(ValueError, match="num_goal_cells=32"):
+        jaxnav.make("RobotMaze-v0", maze_file=str(big))
+    registration.env_config("RobotMaze-v0", maze_file=str(big), num_goal_cells=32)
+    with pytest.raises(ValueError, match="153 x 153 cells"):
+        registration.env_config("RobotMaze-v0", maze_file=str(open_maze_file(big, 153)))
+    registration.env_config("RobotMaze-v0", maze_file=str(open_maze_file(big, 152)))
+    out = tmp_path / "r"
+    argv = [*ROBOT, "--maze-file", str(open_maze_file(big, 200)), "--out", str(out)]
+    err = one_line_error(capsys, 2, train_main(argv))
+    assert f"maze_file={str(big)!r}" in err and "num_goal_cells" in err, err
+    assert not out.exists() and not (tmp_path / ".r.partial").exists()
+
+
 # ------------------------------------------------------------------ 2, 3. every float, every bool
 def typed_fields(kind: str) -> list[tuple[str, str]]:
     """(env id, field) for every field of the grid and robot configs annotated ``kind``."""

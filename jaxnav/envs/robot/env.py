@@ -314,6 +314,17 @@ class RobotConfig:
                     "num_goal_cells=32, or fewer mazes"
                 )
         for maze in self.load_mazes(validate_only=True):
+            if self.maze == "file":  # read and parsed only: the table is built with the env
+                rows, cols = maze.grid.shape
+                table = mazes.goal_table_bytes(1, rows, cols, self.num_goal_cells or None)
+                if table > MAX_GOAL_TABLE_BYTES:
+                    raise ValueError(
+                        f"maze_file={self.maze_file!r}: its {cols} x {rows} cells with "
+                        f"num_goal_cells={self.num_goal_cells} (0: every cell) need a geodesic "
+                        f"progress table of {table / 2**20:,.0f} MiB (at most "
+                        f"{MAX_GOAL_TABLE_BYTES / 2**20:,.0f}); keep fewer goal cells, e.g. "
+                        "num_goal_cells=32"
+                    )
             mazes.check_slots(maze, self.num_wall_slots)
             width, height = maze.size_m
             if self.goal_radius >= min(width, height) / 2:
