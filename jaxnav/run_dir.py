@@ -120,12 +120,18 @@ class RunLock:
 
 def lock_run(partial: Path, new: bool) -> RunLock:
     """Lock the run directory ``partial`` for writing (``new``: create it first);
-    ``ValueError`` (one line) when another process writes it or is creating it."""
+    ``ValueError`` (one line) when another process writes it or is creating it, ``OSError``
+    (its filename ``partial``) when it cannot be written."""
     if new:
         try:
             partial.mkdir(parents=True)
         except FileExistsError:
             raise ValueError(f"{partial}: another process started a run there just now") from None
+    try:  # really create a file: permission bits lie on read-only or special filesystems
+        with tempfile.TemporaryFile(dir=partial):
+            pass
+    except OSError as e:  # the directory, not a random temporary name, is what the user fixes
+        raise OSError(e.errno, e.strerror, str(partial)) from None
     path = partial / LOCK
     fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
     try:

@@ -23,9 +23,9 @@ EXIT_WRITE_FAULT = 4  # as training's full disk: the machine refused a write, no
 WRITE_FAULTS = {
     errno.ENOSPC: "no space left on device; free space or write elsewhere, then run again",
     errno.EDQUOT: "disk quota exceeded; free space or write elsewhere, then run again",
-    errno.EROFS: "read-only file system; write elsewhere",
-    errno.EACCES: "permission denied; write to a directory you may write, or fix its permissions",
-    errno.EPERM: "operation not permitted; write to a directory you may write",
+    errno.EROFS: "read-only file system; remount it writable or write elsewhere",
+    errno.EACCES: "permission denied; fix its permissions or write elsewhere",
+    errno.EPERM: "operation not permitted; fix its permissions or write elsewhere",
     errno.EIO: "input/output error; check the disk (dmesg), then run again",
 }
 

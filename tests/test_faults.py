@@ -521,6 +521,33 @@ def test_evaluate_render_and_export_on_a_disk_that_refuses_writes_are_one_line(
             assert nodes(disk) == before, name  # nothing partial left behind
 
 
+def test_resume_of_a_run_whose_directory_is_read_only_is_one_line_then_completes(
+    tmp_path, capsys, monkeypatch, reference
+):
+    """A read-only bind mount over the unfinished run's directory: what a directory of another
+    user is to anyone but root."""
+    out = tmp_path / "run"
+    interrupted_after(out, monkeypatch, 2)
+    partial = run_dir.partial_dir(out)
+    bind = ["mount", "--bind", str(partial), str(partial)]
+    if subprocess.run(bind, capture_output=True).returncode != 0:
+        pytest.skip("a bind mount needs root")
+    try:
+        read_only = ["mount", "-o", "remount,ro,bind", str(partial)]
+        subprocess.run(read_only, check=True, capture_output=True)
+        before = nodes(partial)
+        capsys.readouterr()
+        err = one_line_error(capsys, 4, train_main(["--resume", str(out)]))
+        assert err.startswith(f"jaxnav.train: error: cannot write {partial}: read-only"), err
+        assert err.endswith(f"continue with: python -m jaxnav.train --resume {out}"), err
+        assert nodes(partial) == before
+    finally:
+        subprocess.run(["umount", str(partial)], check=True)
+    assert train_main(["--resume", str(out)]) == 0
+    capsys.readouterr()
+    assert_complete(out, reference)
+
+
 # ------------------------------------------------------------------ hostile inputs
 def test_hostile_env_inputs_are_one_line(tmp_path, capsys):
     import jaxnav

@@ -2,7 +2,8 @@
 
 Bad input of any kind is one line on stderr naming the value, exit code 2, nothing written.
 Exit codes: 0 done, 2 bad input, 3 diverged (NaN/Inf; the last good checkpoint is kept),
-4 no space left on device (the last good checkpoint is kept), 128 + signal number when
+4 no space left on device or another write the machine refused, e.g. ``--resume`` of a run
+whose directory is read-only (the last good checkpoint is kept), 128 + signal number when
 stopped by SIGINT (130) or SIGTERM (143) after saving a checkpoint.
 An unfinished run lives in the hidden sibling ``.NAME.partial`` of its ``--out`` and continues
 with ``--resume OUT``; it is renamed to ``OUT`` when complete.
@@ -38,6 +39,7 @@ from jaxnav.config import MAX_STEPS, TrainConfig
 from jaxnav.presets import train_defaults
 from jaxnav.programs import enable_compilation_cache
 from jaxnav.registration import registered_envs
+from jaxnav.safe_io import WRITE_FAULTS, write_fault_errno
 from jaxnav.train import Trainer
 
 EXIT_DIVERGED = 3
@@ -346,7 +348,7 @@ def _main(
     except ValueError as e:
         return fail(prog, str(e))
     except OSError as e:
-        return runner.disk_full(prog, e, resume)
+        return write_refused(prog, e, resume)
     sinks: list[loggers.MetricsLogger] = []
     progress = runner.Progress(config, args.quiet or not runner.is_primary(), sinks)
 
@@ -382,8 +384,8 @@ def _main(
             print(f"{prog}: diverged: {e}", file=sys.stderr)
             return EXIT_DIVERGED
         except Exception as e:  # noqa: BLE001 (orbax wraps a full disk in several kinds)
-            if runner.is_disk_full(e):
-                return runner.disk_full(prog, e, resume)
+            if write_fault_errno(e) is not None:
+                return write_refused(prog, e, resume)
             if isinstance(e, ValueError):  # a checkpoint that does not restore
                 return fail(prog, str(e))
             raise
@@ -403,8 +405,27 @@ def _main(
             except ValueError as e:  # --out became something the run cannot be renamed to
                 return fail(prog, str(e))
             except OSError as e:
-                return runner.disk_full(prog, e, resume)
+                return write_refused(prog, e, resume)
     return 0
+
+
+def write_refused(prog: str, error: Exception, resume: str) -> int:
+    """Report a write the machine refused in one line with the command that continues the
+    run, exit code 4: a full disk as ``runner.disk_full``, a read-only or forbidden run
+    directory (``safe_io.WRITE_FAULTS``) naming the path; any other error is raised again."""
+    code = write_fault_errno(error)
+    if code is None or runner.is_disk_full(error):
+        return runner.disk_full(prog, error, resume)
+    cause: BaseException | None = error
+    while cause is not None and getattr(cause, "filename", None) is None:
+        cause = cause.__cause__ or cause.__context__  # the OSError that names the path
+    where = getattr(cause, "filename", None) or "the run directory"
+    print(
+        f"{prog}: error: cannot write {where}: {WRITE_FAULTS[code]}; then continue with: "
+        f"{resume}",
+        file=sys.stderr,
+    )
+    return EXIT_DISK_FULL
 
 
 def stopped(prog: str, e: runner.Interrupted, resume: str) -> int:
