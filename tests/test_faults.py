@@ -473,11 +473,13 @@ def test_a_damaged_metadata_of_a_run_saved_without_checksums_is_one_line(
 
 # ------------------------------------------------------------------ a disk that refuses writes
 @contextlib.contextmanager
-def small_filesystem(where: Path, state: str) -> Iterator[Path]:
-    """A real 256 KiB tmpfs at ``where``: ``full`` (a file fills every block) or ``read-only``
-    (remounted so); root only, else the test is skipped."""
+def small_filesystem(
+    where: Path, state: str, size: str = "256k", free: int = 0
+) -> Iterator[Path]:
+    """A real tmpfs of ``size`` at ``where``: ``full`` (the file ``filler`` takes all but
+    ``free`` bytes) or ``read-only`` (remounted so); root only, else the test is skipped."""
     where.mkdir()
-    mount = ["mount", "-t", "tmpfs", "-o", "size=256k", "tmpfs", str(where)]
+    mount = ["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(where)]
     if subprocess.run(mount, capture_output=True).returncode != 0:
         pytest.skip("mounting a tmpfs needs root")
     try:
@@ -490,6 +492,7 @@ def small_filesystem(where: Path, state: str) -> Iterator[Path]:
                 assert e.errno == errno.ENOSPC
             finally:
                 os.close(fd)
+            os.truncate(where / "filler", (where / "filler").stat().st_size - free)
         else:
             remount = ["mount", "-o", "remount,ro", str(where)]
             subprocess.run(remount, check=True, capture_output=True)
@@ -546,6 +549,26 @@ def test_resume_of_a_run_whose_directory_is_read_only_is_one_line_then_completes
     assert train_main(["--resume", str(out)]) == 0
     capsys.readouterr()
     assert_complete(out, reference)
+
+
+def test_training_on_a_full_disk_is_one_line_without_orbax_tracebacks_and_resumes(
+    tmp_path, reference
+):
+    """A real full disk under the whole command (orbax logs it, tensorstore's leftover writes
+    print closed-event-loop tracebacks until the process ends): one line, exit 4, also on a
+    --resume while the disk is still full; freed, the run resumes to the reference."""
+    train = [sys.executable, "-m", "jaxnav.train"]
+    with small_filesystem(tmp_path / "disk", "full", size="1m", free=32 * 1024) as disk:
+        out = disk / "run"
+        for argv in ([*TINY, "--out", str(out)], ["--resume", str(out)]):
+            proc = subprocess.run([*train, *argv], capture_output=True, text=True, timeout=300)
+            assert proc.returncode == 4, proc.stderr[-2000:]
+            assert proc.stderr.count("\n") == 1, proc.stderr[-2000:]
+            assert proc.stderr.startswith("jaxnav.train: no space left on device"), proc.stderr
+        (disk / "filler").unlink()
+        proc = subprocess.run([*train, "--resume", str(out)], capture_output=True, text=True)
+        assert proc.returncode == 0 and proc.stderr == "", proc.stderr[-2000:]
+        assert (out / "metrics.csv").read_text() == reference
 
 
 # ------------------------------------------------------------------ hostile inputs

@@ -12,14 +12,16 @@ with ``--resume OUT``; it is renamed to ``OUT`` when complete.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
+import logging
 import shlex
 import shutil
 import signal
 import sys
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -373,7 +375,7 @@ def _main(
         f"if stopped, continue with: {resume}",
         flush=True,
     )
-    with runner.stop_on_signals(saving.signals):
+    with runner.stop_on_signals(saving.signals), quiet_write_faults():
         try:
             state, metrics, compile_s, train_s = runner.train_seeds(
                 trainer, run_dir.seed_keys(config), progress, saving
@@ -384,7 +386,7 @@ def _main(
             print(f"{prog}: diverged: {e}", file=sys.stderr)
             return EXIT_DIVERGED
         except Exception as e:  # noqa: BLE001 (orbax wraps a full disk in several kinds)
-            if write_fault_errno(e) is not None:
+            if runner.is_disk_full(e) or write_fault_errno(e) is not None:
                 return write_refused(prog, e, resume)
             if isinstance(e, ValueError):  # a checkpoint that does not restore
                 return fail(prog, str(e))
@@ -409,12 +411,75 @@ def _main(
     return 0
 
 
+# what a third-party error about a refused write says (orbax logs them as text)
+WRITE_FAULT_TEXT = (
+    "No space left on device",
+    "Disk quota exceeded",
+    "Read-only file system",
+    "Permission denied",
+    "Input/output error",
+)
+
+
+class DropWriteFaults(logging.Filter):
+    """Drops a log record about a write the machine refused: orbax logs a full disk, with
+    tracebacks, before it raises it, and jaxnav reports it in one line (``write_refused``)."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        error = record.exc_info[1] if record.exc_info else None
+        if error is not None and (runner.is_disk_full(error) or write_fault_errno(error)):
+            return False
+        text = record.getMessage()
+        return not any(fault in text for fault in WRITE_FAULT_TEXT)
+
+
+def is_closed_loop_error(error: BaseException | None) -> bool:
+    """The error of a tensorstore write finishing after orbax's save failed and closed its
+    event loop: a leftover of a refused write, reported (once, in one line) by jaxnav."""
+    return isinstance(error, RuntimeError) and str(error) == "Event loop is closed"
+
+
+def drop_closed_loop_errors() -> Any:
+    """Make ``sys.unraisablehook`` (through which tensorstore reports its callbacks' errors)
+    drop ``is_closed_loop_error`` errors, showing every other as before; returns the hook."""
+    previous, closed_loop = sys.unraisablehook, is_closed_loop_error  # run as __main__, this
+    # module's globals are gone when the interpreter ends, while tensorstore still reports
+
+    def hook(unraisable: Any) -> None:
+        if not closed_loop(unraisable.exc_value):
+            previous(unraisable)
+
+    sys.unraisablehook = hook
+    return hook
+
+
+@contextlib.contextmanager
+def quiet_write_faults() -> Iterator[None]:
+    """Within the block, orbax's (absl's) log records of a refused write are dropped, and so
+    are the closed-event-loop tracebacks tensorstore reports after it; every other record and
+    error is shown as before. ``write_refused`` keeps the hook after the block: the leftover
+    writes end after the command's last line."""
+    absl_logger = logging.getLogger("absl")
+    drop = DropWriteFaults()
+    absl_logger.addFilter(drop)
+    previous = sys.unraisablehook
+    hook = drop_closed_loop_errors()
+    try:
+        yield
+    finally:
+        absl_logger.removeFilter(drop)
+        if sys.unraisablehook is hook:  # no write fault: the hook as it was
+            sys.unraisablehook = previous
+
+
 def write_refused(prog: str, error: Exception, resume: str) -> int:
     """Report a write the machine refused in one line with the command that continues the
     run, exit code 4: a full disk as ``runner.disk_full``, a read-only or forbidden run
     directory (``safe_io.WRITE_FAULTS``) naming the path; any other error is raised again."""
     code = write_fault_errno(error)
-    if code is None or runner.is_disk_full(error):
+    if code is not None or runner.is_disk_full(error):
+        drop_closed_loop_errors()  # for good: they come until the process ends
+    if code is None or runner.is_disk_full(error):  # orbax's full disk is only text in its error
         return runner.disk_full(prog, error, resume)
     cause: BaseException | None = error
     while cause is not None and getattr(cause, "filename", None) is None:
