@@ -130,6 +130,14 @@ def parse_env_arg(text: str) -> tuple[str, Any]:
         ) from None
 
 
+def parse_path(text: str) -> Path:
+    """An argparse ``type`` for a file path: ``Path('')`` is the current directory, so an
+    empty path (an unset shell variable) is refused rather than read as '.'."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError(f"empty path {text!r} (give a file)")
+    return Path(text)
+
+
 def add_env_args(p: argparse.ArgumentParser) -> None:
     """``--env-arg KEY=VALUE`` (repeatable) and ``--maze-file PATH``."""
     p.add_argument(
@@ -138,22 +146,33 @@ def add_env_args(p: argparse.ArgumentParser) -> None:
         action="append",
         default=[],
         metavar="KEY=VALUE",
-        help="environment override, repeatable (e.g. size=11, obs_mode=paper)",
+        help="environment override, repeatable, each KEY once (e.g. size=11, obs_mode=paper)",
     )
     p.add_argument(
         "--maze-file",
-        type=Path,
+        type=parse_path,
         metavar="PATH",
-        help="your own maze as a text file (README: Robot mazes); the env id defaults to "
-        "RobotMaze-v0",
+        help="your own maze as a text file (README: Robot mazes; a UTF-8 BOM is skipped); the "
+        "env id defaults to RobotMaze-v0",
     )
 
 
 def env_from_args(args: argparse.Namespace, env: str | None) -> tuple[str | None, dict[str, Any]]:
     """``(env id, env overrides)`` from ``--env-arg`` and ``--maze-file`` (which implies
-    RobotMaze-v0 unless an id is given)."""
-    env_kwargs = dict(args.env_arg or [])
+    RobotMaze-v0 unless an id is given); ``UsageError`` for an empty ``--env`` (it would be
+    the default env) or a key given twice (the last would silently win)."""
+    if env is not None and not env.strip():
+        raise UsageError(f"--env {env!r}: empty; give an env id or leave --env out")
+    env_kwargs: dict[str, Any] = {}
+    for key, value in args.env_arg or []:
+        if key in env_kwargs:
+            raise UsageError(
+                f"--env-arg {key} given twice ({env_kwargs[key]!r}, then {value!r}); give it once"
+            )
+        env_kwargs[key] = value
     if getattr(args, "maze_file", None) is not None:
+        if "maze_file" in env_kwargs:
+            raise UsageError("--maze-file and --env-arg maze_file=... both given; give one")
         env_kwargs["maze_file"] = str(args.maze_file)
         env = env or "RobotMaze-v0"
     return env, env_kwargs
