@@ -571,6 +571,31 @@ def test_training_on_a_full_disk_is_one_line_without_orbax_tracebacks_and_resume
         assert (out / "metrics.csv").read_text() == reference
 
 
+def test_orbax_records_are_only_held_back_when_a_write_fault_ends_the_run(caplog):
+    """Quieting a full disk hides no real error: other records pass at once, and the ones
+    held back are shown when no write fault was reported."""
+    import logging
+
+    from jaxnav.train import __main__ as train_cli
+
+    absl = logging.getLogger("absl")
+    hook = sys.unraisablehook
+    with caplog.at_level(logging.WARNING, logger="absl"):
+        with train_cli.quiet_write_faults():
+            absl.error("a real error")
+            absl.error("write failed: No space left on device")
+            assert [r.getMessage() for r in caplog.records] == ["a real error"]
+        assert [r.getMessage() for r in caplog.records][-1].endswith("No space left on device")
+        assert sys.unraisablehook is hook
+        caplog.clear()
+        with train_cli.quiet_write_faults():
+            absl.error("write failed: No space left on device")
+            error = OSError(errno.ENOSPC, "No space left on device", "x")
+            assert train_cli.write_refused("jaxnav.train", error, "resume") == 4
+        assert caplog.records == [] and sys.unraisablehook is not hook
+    sys.unraisablehook = hook
+
+
 # ------------------------------------------------------------------ hostile inputs
 def test_hostile_env_inputs_are_one_line(tmp_path, capsys):
     import jaxnav

@@ -421,16 +421,24 @@ WRITE_FAULT_TEXT = (
 )
 
 
-class DropWriteFaults(logging.Filter):
-    """Drops a log record about a write the machine refused: orbax logs a full disk, with
-    tracebacks, before it raises it, and jaxnav reports it in one line (``write_refused``)."""
+class HoldWriteFaults(logging.Filter):
+    """Holds back a log record about a write the machine refused: orbax logs a full disk, with
+    tracebacks, before it raises it, and jaxnav reports it in one line (``write_refused``).
+    The records held are in ``held``, shown after all when no write fault ends the run."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.held: list[logging.LogRecord] = []
 
     def filter(self, record: logging.LogRecord) -> bool:
         error = record.exc_info[1] if record.exc_info else None
-        if error is not None and (runner.is_disk_full(error) or write_fault_errno(error)):
-            return False
         text = record.getMessage()
-        return not any(fault in text for fault in WRITE_FAULT_TEXT)
+        if (error is not None and (runner.is_disk_full(error) or write_fault_errno(error))) or any(
+            fault in text for fault in WRITE_FAULT_TEXT
+        ):
+            self.held.append(record)
+            return False
+        return True
 
 
 def is_closed_loop_error(error: BaseException | None) -> bool:
@@ -455,21 +463,24 @@ def drop_closed_loop_errors() -> Any:
 
 @contextlib.contextmanager
 def quiet_write_faults() -> Iterator[None]:
-    """Within the block, orbax's (absl's) log records of a refused write are dropped, and so
-    are the closed-event-loop tracebacks tensorstore reports after it; every other record and
-    error is shown as before. ``write_refused`` keeps the hook after the block: the leftover
-    writes end after the command's last line."""
+    """Within the block, orbax's (absl's) log records of a refused write are held back, and
+    the closed-event-loop tracebacks tensorstore reports after it are dropped; every other
+    record and error is shown as before. When ``write_refused`` reported a fault (it keeps
+    the hook: the leftover writes end after the command's last line) the held records are
+    dropped; otherwise they are shown as they would have been."""
     absl_logger = logging.getLogger("absl")
-    drop = DropWriteFaults()
-    absl_logger.addFilter(drop)
+    hold = HoldWriteFaults()
+    absl_logger.addFilter(hold)
     previous = sys.unraisablehook
     hook = drop_closed_loop_errors()
     try:
         yield
     finally:
-        absl_logger.removeFilter(drop)
-        if sys.unraisablehook is hook:  # no write fault: the hook as it was
+        absl_logger.removeFilter(hold)
+        if sys.unraisablehook is hook:  # no write fault reported: nothing is hidden
             sys.unraisablehook = previous
+            for record in hold.held:
+                absl_logger.handle(record)
 
 
 def write_refused(prog: str, error: Exception, resume: str) -> int:
@@ -482,8 +493,10 @@ def write_refused(prog: str, error: Exception, resume: str) -> int:
     if code is None or runner.is_disk_full(error):  # orbax's full disk is only text in its error
         return runner.disk_full(prog, error, resume)
     cause: BaseException | None = error
-    while cause is not None and getattr(cause, "filename", None) is None:
-        cause = cause.__cause__ or cause.__context__  # the OSError that names the path
+    for _ in range(20):  # the OSError that names the path, down a chain of causes
+        if cause is None or getattr(cause, "filename", None) is not None:
+            break
+        cause = cause.__cause__ or cause.__context__
     where = getattr(cause, "filename", None) or "the run directory"
     print(
         f"{prog}: error: cannot write {where}: {WRITE_FAULTS[code]}; then continue with: "
