@@ -97,6 +97,7 @@ def write_manifest(directory: Path, inputs: dict[str, str] | None = None) -> Non
     """Write ``MANIFEST`` in the orbax checkpoint ``directory``: the SHA-256 of every file in
     it and ``inputs`` (name to SHA-256 of the files its state depends on)."""
     manifest = {"files": _file_sums(directory), "inputs": dict(inputs or {})}
+    # not safe_io.atomic_output: a temporary file left by a failed write marks it damaged
     tmp = directory / (MANIFEST + ".tmp")
     tmp.write_text(json.dumps(manifest, indent=1) + "\n")
     os.replace(tmp, directory / MANIFEST)
