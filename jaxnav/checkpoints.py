@@ -93,6 +93,36 @@ def _file_sums(step_dir: Path) -> dict[str, str]:
     }
 
 
+def write_manifest(directory: Path, inputs: dict[str, str] | None = None) -> None:
+    """Write ``MANIFEST`` in the orbax checkpoint ``directory``: the SHA-256 of every file in
+    it and ``inputs`` (name to SHA-256 of the files its state depends on)."""
+    manifest = {"files": _file_sums(directory), "inputs": dict(inputs or {})}
+    # not safe_io.atomic_output: a temporary file left by a failed write marks it damaged
+    tmp = directory / (MANIFEST + ".tmp")
+    tmp.write_text(json.dumps(manifest, indent=1) + "\n")
+    os.replace(tmp, directory / MANIFEST)
+
+
+def manifest_damage(directory: Path) -> str | None:
+    """What is wrong with the checkpoint ``directory`` (None: intact, or saved before
+    checksums): a file missing, added or differing from its checksum in ``MANIFEST``."""
+    try:
+        manifest = json.loads((directory / MANIFEST).read_text())
+        want = manifest["files"]
+        if not isinstance(want, dict):
+            raise TypeError("no list of files")
+    except FileNotFoundError:
+        return None if not (directory / (MANIFEST + ".tmp")).exists() else "no checksums"
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        return f"unreadable checksums ({e})"
+    got = _file_sums(directory)
+    for name in sorted(set(want) | set(got)):
+        if want.get(name) != got.get(name):
+            what = "missing" if name not in got else "unexpected" if name not in want else ""
+            return f"{name} {what or 'differs from its checksum'}"
+    return None
+
+
 class Checkpoints:
     """``save(logs_done, state, metrics, meta)`` / ``restore(like_state, like_metrics)``.
 
@@ -140,29 +170,12 @@ class Checkpoints:
             ),
         )
         self.manager.wait_until_finished()
-        step_dir = self.directory / str(logs_done)
-        manifest = {"files": _file_sums(step_dir), "inputs": self.inputs}
-        tmp = step_dir / (MANIFEST + ".tmp")
-        tmp.write_text(json.dumps(manifest, indent=1) + "\n")
-        os.replace(tmp, step_dir / MANIFEST)
+        write_manifest(self.directory / str(logs_done), self.inputs)
 
     def damage(self, step: int) -> str | None:
         """What is wrong with checkpoint ``step`` (None: intact, or saved before checksums):
         a file missing, added or differing from its checksum."""
-        step_dir = self.directory / str(step)
-        try:
-            manifest = json.loads((step_dir / MANIFEST).read_text())
-            want = manifest["files"]
-        except FileNotFoundError:
-            return None if not (step_dir / (MANIFEST + ".tmp")).exists() else "no checksums"
-        except (OSError, ValueError, KeyError, TypeError) as e:
-            return f"unreadable checksums ({e})"
-        got = _file_sums(step_dir)
-        for name in sorted(set(want) | set(got)):
-            if want.get(name) != got.get(name):
-                what = "missing" if name not in got else "unexpected" if name not in want else ""
-                return f"{name} {what or 'differs from its checksum'}"
-        return None
+        return manifest_damage(self.directory / str(step))
 
     def changed_inputs(self, step: int) -> list[str]:
         """The inputs (config.json, maze file) whose checksum differs from the one saved with

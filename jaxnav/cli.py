@@ -1,6 +1,8 @@
 """What every command line shares: one-line errors and the env override flags.
 
 Bad input of any kind is one line on stderr naming the value, exit code 2, nothing written.
+A write the machine refuses (no space left, a read-only file system, permission denied, an I/O
+error) is one line naming the path and the remedy, exit code 4, nothing partial left.
 Each command parses its own flags in its own module and calls the library:
 ``python -m jaxnav.train`` (``jaxnav/train/__main__.py``, over ``jaxnav.runner``),
 ``python -m jaxnav.evaluate`` (``jaxnav/evaluate/__main__.py``), ``python -m jaxnav.render``
@@ -15,6 +17,8 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
+
+from jaxnav.safe_io import EXIT_WRITE_FAULT, WriteFault
 
 
 class UsageError(Exception):
@@ -94,6 +98,13 @@ def fail(prog: str, message: str) -> int:
     return 2
 
 
+def write_failed(prog: str, error: WriteFault) -> int:
+    """Print a write the machine refused (a full disk, a read-only file system) as one line;
+    returns its exit code, ``EXIT_WRITE_FAULT`` (4)."""
+    print(f"{prog}: error: {one_line(str(error))}", file=sys.stderr)
+    return EXIT_WRITE_FAULT
+
+
 def parse_bool(text: str) -> bool:
     """An argparse ``type`` for true/false flags (also 1/0, yes/no, on/off)."""
     t = text.lower()
@@ -119,6 +130,14 @@ def parse_env_arg(text: str) -> tuple[str, Any]:
         ) from None
 
 
+def parse_path(text: str) -> Path:
+    """An argparse ``type`` for a file path: ``Path('')`` is the current directory, so an
+    empty path (an unset shell variable) is refused rather than read as '.'."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError(f"empty path {text!r} (give a file)")
+    return Path(text)
+
+
 def add_env_args(p: argparse.ArgumentParser) -> None:
     """``--env-arg KEY=VALUE`` (repeatable) and ``--maze-file PATH``."""
     p.add_argument(
@@ -127,22 +146,33 @@ def add_env_args(p: argparse.ArgumentParser) -> None:
         action="append",
         default=[],
         metavar="KEY=VALUE",
-        help="environment override, repeatable (e.g. size=11, obs_mode=paper)",
+        help="environment override, repeatable, each KEY once (e.g. size=11, obs_mode=paper)",
     )
     p.add_argument(
         "--maze-file",
-        type=Path,
+        type=parse_path,
         metavar="PATH",
-        help="your own maze as a text file (README: Robot mazes); the env id defaults to "
-        "RobotMaze-v0",
+        help="your own maze as a text file (README: Robot mazes; a UTF-8 BOM is skipped); the "
+        "env id defaults to RobotMaze-v0",
     )
 
 
 def env_from_args(args: argparse.Namespace, env: str | None) -> tuple[str | None, dict[str, Any]]:
     """``(env id, env overrides)`` from ``--env-arg`` and ``--maze-file`` (which implies
-    RobotMaze-v0 unless an id is given)."""
-    env_kwargs = dict(args.env_arg or [])
+    RobotMaze-v0 unless an id is given); ``UsageError`` for an empty ``--env`` (it would be
+    the default env) or a key given twice (the last would silently win)."""
+    if env is not None and not env.strip():
+        raise UsageError(f"--env {env!r}: empty; give an env id or leave --env out")
+    env_kwargs: dict[str, Any] = {}
+    for key, value in args.env_arg or []:
+        if key in env_kwargs:
+            raise UsageError(
+                f"--env-arg {key} given twice ({env_kwargs[key]!r}, then {value!r}); give it once"
+            )
+        env_kwargs[key] = value
     if getattr(args, "maze_file", None) is not None:
+        if "maze_file" in env_kwargs:
+            raise UsageError("--maze-file and --env-arg maze_file=... both given; give one")
         env_kwargs["maze_file"] = str(args.maze_file)
         env = env or "RobotMaze-v0"
     return env, env_kwargs

@@ -38,7 +38,7 @@ from jaxnav.config import TrainConfig
 from jaxnav.deploy.policy import FORMAT, FORMAT_VERSION, Policy
 from jaxnav.envs import grid_maze
 from jaxnav.envs.robot import env as robot_env
-from jaxnav.safe_io import check_output_file
+from jaxnav.safe_io import WriteFault, atomic_output, check_output_file
 from jaxnav.version import __version__
 
 FORMATS = ("npz", "onnx")
@@ -490,16 +490,11 @@ def write_policy(
         raise ValueError(f"--format {fmt}: must be one of {', '.join(FORMATS)}")
     if fmt == "onnx":
         payload = onnx_model(arrays, metadata).SerializeToString()  # built (and checked) first
-    tmp = out.with_name(f".{out.name}.partial")
-    try:
-        with open(tmp, "wb") as f:
-            if fmt == "npz":
-                np.savez_compressed(f, **arrays, metadata=np.array(json.dumps(metadata)))
-            else:
-                f.write(payload)
-        os.replace(tmp, out)
-    finally:
-        tmp.unlink(missing_ok=True)
+    with atomic_output(out) as tmp, open(tmp, "wb") as f:
+        if fmt == "npz":
+            np.savez_compressed(f, **arrays, metadata=np.array(json.dumps(metadata)))
+        else:
+            f.write(payload)
     return out
 
 
@@ -571,7 +566,7 @@ def check_out(out: Path, fmt: str) -> None:
 def main(argv: Sequence[str] | None = None) -> int:
     import argparse
 
-    from jaxnav.cli import Parser, UsageError, fail
+    from jaxnav.cli import Parser, UsageError, fail, write_failed
 
     prog = "jaxnav.export"
     p = Parser(
@@ -589,6 +584,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         if not args.run.is_dir():
             raise ValueError(f"{args.run}: not a run directory (no such directory)")
         path, metadata = export_run(args.run, args.format, args.out, args.run_seed)
+    except WriteFault as e:
+        return write_failed(prog, e)
     except (UsageError, ValueError, FileNotFoundError) as e:
         return fail(prog, str(e))
     net = metadata["network"]

@@ -17,7 +17,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
-import os
 import sys
 import textwrap
 from collections.abc import Sequence
@@ -38,11 +37,12 @@ from jaxnav.cli import (
     check_policy_source,
     env_from_args,
     fail,
+    write_failed,
 )
 from jaxnav.environment import Environment, EnvParams
 from jaxnav.evaluate import Policy, play, random_policy
 from jaxnav.programs import enable_compilation_cache
-from jaxnav.safe_io import check_output_file
+from jaxnav.safe_io import WriteFault, atomic_output, check_output_file
 from jaxnav.train import Trainer
 
 OUTCOMES = ("success", "collision", "timeout")
@@ -225,11 +225,23 @@ def save_gif(
         if title:
             fig.suptitle(title, fontsize=10)
 
-    tmp = path.with_name(f".{path.stem}.partial{path.suffix}")
-    FuncAnimation(fig, update, frames=frames).save(tmp, writer=PillowWriter(fps=fps))
-    plt.close(fig)
-    os.replace(tmp, path)
+    try:
+        with atomic_output(path) as tmp:
+            FuncAnimation(fig, update, frames=frames).save(tmp, writer=PillowWriter(fps=fps))
+    finally:
+        plt.close(fig)
     return len(frames)
+
+
+def save_figure(fig: Any, path: Path) -> None:
+    """Save ``fig`` to ``path`` (.png; .svg and .pdf: vector, for papers), written atomically."""
+    import matplotlib.pyplot as plt
+
+    try:
+        with atomic_output(path) as tmp:
+            fig.savefig(tmp, dpi=110)
+    finally:
+        plt.close(fig)
 
 
 # ---------------------------------------------------------------------------- command line
@@ -312,18 +324,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     episodes = record(env, env_params, policy, obs, state)
     who = f"pretrained {args.pretrained}" if args.pretrained else f"seed {run_seed}"
     title = f"{env.name}: {args.policy} policy ({who})"
-    if args.out.suffix == ".gif":
-        frames = save_gif(episodes, args.out, fps=args.fps, title=title)
-        print(f"wrote {args.out} ({frames} frames)")
-    else:
-        import matplotlib
+    try:
+        if args.out.suffix == ".gif":
+            frames = save_gif(episodes, args.out, fps=args.fps, title=title)
+            print(f"wrote {args.out} ({frames} frames)")
+        else:
+            import matplotlib
 
-        matplotlib.use("Agg")
-        fig = trajectories_figure(episodes, title)
-        tmp = args.out.with_name(f".{args.out.stem}.partial{args.out.suffix}")
-        fig.savefig(tmp, dpi=110)  # .svg and .pdf: vector, for papers
-        os.replace(tmp, args.out)
-        print(f"wrote {args.out}")
+            matplotlib.use("Agg")  # no display needed
+            save_figure(trajectories_figure(episodes, title), args.out)
+            print(f"wrote {args.out}")
+    except WriteFault as e:
+        return write_failed(prog, e)
     for i, ep in enumerate(episodes):
         print(f"  episode {i}: {describe(ep)}")
     return 0

@@ -24,11 +24,11 @@ import numpy as np
 import orbax.checkpoint as ocp
 
 from jaxnav.agents import dqn
-from jaxnav.checkpoints import sha256_of, this_process_only
+from jaxnav.checkpoints import manifest_damage, sha256_of, this_process_only, write_manifest
 from jaxnav.config import TrainConfig, upgrade_saved
 from jaxnav.host import host_info, package_version
 from jaxnav.registration import env_config
-from jaxnav.safe_io import remove_quietly
+from jaxnav.safe_io import atomic_output
 from jaxnav.train import Trainer
 
 PACKAGES = ("jaxnav", "jax", "jaxlib", "flax", "optax", "chex", "orbax-checkpoint", "mujoco-mjx")
@@ -120,12 +120,18 @@ class RunLock:
 
 def lock_run(partial: Path, new: bool) -> RunLock:
     """Lock the run directory ``partial`` for writing (``new``: create it first);
-    ``ValueError`` (one line) when another process writes it or is creating it."""
+    ``ValueError`` (one line) when another process writes it or is creating it, ``OSError``
+    (its filename ``partial``) when it cannot be written."""
     if new:
         try:
             partial.mkdir(parents=True)
         except FileExistsError:
             raise ValueError(f"{partial}: another process started a run there just now") from None
+    try:  # really create a file: permission bits lie on read-only or special filesystems
+        with tempfile.TemporaryFile(dir=partial):
+            pass
+    except OSError as e:  # the directory, not a random temporary name, is what the user fixes
+        raise OSError(e.errno, e.strerror, str(partial)) from None
     path = partial / LOCK
     fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
     try:
@@ -190,27 +196,21 @@ def config_from_json(d: dict[str, Any]) -> TrainConfig:
 
 
 def write_json(path: Path, obj: Any) -> None:
-    """Write atomically: a crash leaves the old file or the new one, never half of one."""
-    tmp = path.with_name(path.name + ".tmp")
-    try:
+    """Write atomically: a crash leaves the old file or the new one, never half of one
+    (``WriteFault`` for a full disk and the like)."""
+    with atomic_output(path) as tmp:
         tmp.write_text(json.dumps(obj, indent=2) + "\n")
-        os.replace(tmp, path)
-    except BaseException:  # a full disk, a directory at ``path``: no stray .tmp
-        remove_quietly(tmp)
-        raise
 
 
 def write_metrics_csv(path: Path, metrics: dict[str, np.ndarray], seeds: list[int]) -> None:
     """One row per (seed, logging interval); ``metrics`` arrays are [num_seeds, num_logs]."""
     names = list(metrics)
-    tmp = path.with_name(path.name + ".tmp")
-    with tmp.open("w", newline="") as f:
+    with atomic_output(path) as tmp, tmp.open("w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["seed", *names])
         for i, seed in enumerate(seeds):
             for t in range(np.asarray(metrics[names[0]]).shape[1]):
                 w.writerow([seed, *(_fmt(metrics[n][i, t]) for n in names)])
-    os.replace(tmp, path)
 
 
 def _fmt(v: Any) -> str:
@@ -219,9 +219,11 @@ def _fmt(v: Any) -> str:
 
 
 def save_params(run: Path, params: Any) -> None:
-    """Final network parameters (all seeds stacked on axis 0) as an orbax checkpoint."""
+    """Final network parameters (all seeds stacked on axis 0) as an orbax checkpoint, with
+    the checksum of each of its files (``checkpoints.MANIFEST``), verified on loading."""
     with ocp.StandardCheckpointer(multiprocessing_options=this_process_only()) as ckpt:
         ckpt.save((run / "params").absolute(), jax.device_get(params))
+    write_manifest(run / "params")
 
 
 def load_params(run: Path, like: Any) -> Any:
@@ -231,10 +233,33 @@ def load_params(run: Path, like: Any) -> Any:
     first (a config.json edited after training, e.g. its hidden_sizes)."""
     abstract = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype), like)
     path = (run / "params").absolute()
+    damage = manifest_damage(path)  # None also for runs saved before params/ had checksums
+    if damage is not None:
+        raise ValueError(
+            f"{run / 'params'}: damaged, {damage}; restore the run from a backup or train "
+            "it again"
+        )
     with ocp.StandardCheckpointer(multiprocessing_options=this_process_only()) as ckpt:
-        saved = ckpt.metadata(path).item_metadata
+        try:
+            saved = ckpt.metadata(path).item_metadata
+        except (KeyError, ValueError, TypeError, OSError) as e:  # orbax's, for a bad _METADATA
+            raise unreadable_params(run, e) from None
+        if not jax.tree.leaves(saved):  # orbax logs a bad _METADATA and returns nothing
+            raise unreadable_params(run, ValueError("_METADATA lists no arrays"))
         _check_saved_params(run, saved, abstract)
-        return ckpt.restore(path, abstract)
+        try:
+            return ckpt.restore(path, abstract)
+        except (KeyError, ValueError, TypeError, OSError) as e:  # damage in a run saved before
+            raise unreadable_params(run, e) from None
+
+
+def unreadable_params(run: Path, error: Exception) -> ValueError:
+    """The one-line error for a run's params/ that orbax cannot read."""
+    what = " ".join(str(error).split())[:200]  # orbax's messages span lines
+    return ValueError(
+        f"{run / 'params'}: unreadable ({type(error).__name__}: {what}); restore the run from "
+        "a backup or train it again"
+    )
 
 
 def _check_saved_params(run: Path, saved: Any, abstract: Any) -> None:

@@ -1,13 +1,76 @@
 """Output files the commands write (``evaluate --out``, ``render --out``, ``export --out``):
 checked before any work so that a directory, a device node, a FIFO, a socket or a symbolic link
 at the path is refused in one line rather than replaced (``os.replace`` would swap
-``/dev/null`` for a JSON file, as root, and replaces a link itself, not its target)."""
+``/dev/null`` for a JSON file, as root, and replaces a link itself, not its target).
+
+Every file is written through ``atomic_output``: a hidden temporary file renamed over the
+path when complete, removed when the write fails, and a full disk, a read-only file system,
+a permission denied or an I/O error turned into a ``WriteFault`` whose text is one line
+naming the path and the remedy (the commands exit with ``EXIT_WRITE_FAULT``)."""
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import os
 import stat
+from collections.abc import Iterator
 from pathlib import Path
+
+EXIT_WRITE_FAULT = 4  # as training's full disk: the machine refused a write, not the input
+
+# what the machine said, and what the user can do about it
+WRITE_FAULTS = {
+    errno.ENOSPC: "no space left on device; free space or write elsewhere, then run again",
+    errno.EDQUOT: "disk quota exceeded; free space or write elsewhere, then run again",
+    errno.EROFS: "read-only file system; remount it writable or write elsewhere",
+    errno.EACCES: "permission denied; fix its permissions or write elsewhere",
+    errno.EPERM: "operation not permitted; fix its permissions or write elsewhere",
+    errno.EIO: "input/output error; check the disk (dmesg), then run again",
+}
+
+
+class WriteFault(OSError):
+    """A write the machine refused (``WRITE_FAULTS``); ``str()`` is one line naming the path
+    and the remedy. An ``OSError`` with the original errno and the path as its filename, so
+    code that handles the raw error (training's full disk) handles this one alike."""
+
+    def __init__(self, path: Path, code: int):
+        super().__init__(code, os.strerror(code), str(path))
+        self.line = f"cannot write {path}: {WRITE_FAULTS[code]}"
+
+    def __str__(self) -> str:
+        return self.line
+
+
+def write_fault_errno(error: BaseException | None) -> int | None:
+    """The ``WRITE_FAULTS`` errno of ``error`` or of an exception it wraps (matplotlib, PIL
+    and numpy re-raise their writers' errors), else ``None``."""
+    for _ in range(20):  # a chain of causes, never a cycle
+        if error is None:
+            return None
+        if isinstance(error, OSError) and error.errno in WRITE_FAULTS:
+            return error.errno
+        error = error.__cause__ or error.__context__
+    return None
+
+
+@contextlib.contextmanager
+def atomic_output(path: Path) -> Iterator[Path]:
+    """Yield the hidden temporary path ``.STEM.partial.SUFFIX`` beside ``path`` (the suffix
+    kept: matplotlib picks the format by it) for the caller to write whole; it is renamed to
+    ``path`` at the end. The one way every command writes a file: on any failure the
+    temporary file is removed, and a ``WRITE_FAULTS`` error raises ``WriteFault``."""
+    tmp = path.with_name(f".{path.stem}.partial{path.suffix}")
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    except BaseException as e:
+        remove_quietly(tmp)
+        code = write_fault_errno(e)
+        if code is not None and not isinstance(e, WriteFault):
+            raise WriteFault(path, code) from e
+        raise
 
 KINDS = {
     stat.S_IFDIR: "a directory",

@@ -6,13 +6,16 @@ Tiny configs: 4 logging intervals of 32 env steps."""
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import json
 import os
 import random
+import shutil
 import stat
 import subprocess
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -265,8 +268,9 @@ def interrupted_after(out: Path, monkeypatch, last: int) -> None:
     monkeypatch.setattr(checkpoints.Checkpoints, "save", save)
 
 
-def flip_a_byte(step_dir: Path, rng: random.Random) -> Path:
-    files = [p for p in sorted(step_dir.rglob("*")) if p.is_file()]
+def flip_a_byte(step_dir: Path, rng: random.Random, only: bool = False) -> Path:
+    """Flip one bit of a file chosen in ``step_dir`` (``only``: of ``step_dir``, a file)."""
+    files = [step_dir] if only else [p for p in sorted(step_dir.rglob("*")) if p.is_file()]
     path = rng.choice(files)
     data = bytearray(path.read_bytes())
     if data:
@@ -422,6 +426,174 @@ def test_evaluate_render_and_export_refuse_outputs_that_are_not_regular_files(
             assert nodes(tmp_path) == before, kind  # nothing replaced
         assert (tmp_path / ext[1:] / "kept" / "file").read_text() == "kept"
     assert not list(trained.glob("*.tmp")) and not list(tmp_path.glob(".*partial*"))
+
+
+# ------------------------------------------------------------------ a finished run's params/
+def test_a_flipped_byte_in_any_file_of_params_is_refused_naming_the_file(
+    trained, tmp_path, capsys
+):
+    from jaxnav.evaluate.__main__ import main as evaluate_main
+    from jaxnav.export import main as export_main
+
+    files = [p.relative_to(trained) for p in tree(trained / "params") if p.is_file()]
+    assert f"params/{checkpoints.MANIFEST}" in map(str, files)
+    for i, name in enumerate(files):
+        run = tmp_path / f"run{i}"
+        shutil.copytree(trained, run)
+        flip_a_byte(run / name, random.Random(i), only=True)
+        err = one_line_error(capsys, 2, export_main([str(run)]))
+        assert f"{run / 'params'}: damaged" in err, err
+        if name.name != checkpoints.MANIFEST:
+            assert f"{name.relative_to('params')} differs from its checksum" in err, err
+        assert not (run / "policy.npz").exists()
+    err = one_line_error(capsys, 2, evaluate_main([str(run), "--episodes", "1"]))
+    assert f"{run / 'params'}: damaged" in err and not (run / "eval.json").exists()
+
+
+@pytest.mark.parametrize("damage", ["truncated", "not_json", "no_tree"])
+def test_a_damaged_metadata_of_a_run_saved_without_checksums_is_one_line(
+    damage, trained, tmp_path, capsys
+):
+    from jaxnav.export import main as export_main
+
+    run = tmp_path / "run"
+    shutil.copytree(trained, run)
+    (run / "params" / checkpoints.MANIFEST).unlink()  # as runs were saved before
+    assert export_main([str(run), "--out", str(tmp_path / "old.npz")]) == 0  # still loads
+    capsys.readouterr()
+    metadata = run / "params" / "_METADATA"
+    text = metadata.read_text()
+    metadata.write_text(
+        {"truncated": text[: len(text) // 2], "not_json": "\x00garbage", "no_tree": "{}"}[damage]
+    )
+    err = one_line_error(capsys, 2, export_main([str(run)]))
+    assert f"{run / 'params'}: unreadable" in err and "config.json" not in err, err
+    assert not (run / "policy.npz").exists()
+
+
+# ------------------------------------------------------------------ a disk that refuses writes
+@contextlib.contextmanager
+def small_filesystem(
+    where: Path, state: str, size: str = "256k", free: int = 0
+) -> Iterator[Path]:
+    """A real tmpfs of ``size`` at ``where``: ``full`` (the file ``filler`` takes all but
+    ``free`` bytes) or ``read-only`` (remounted so); root only, else the test is skipped."""
+    where.mkdir()
+    mount = ["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(where)]
+    if subprocess.run(mount, capture_output=True).returncode != 0:
+        pytest.skip("mounting a tmpfs needs root")
+    try:
+        if state == "full":
+            fd = os.open(where / "filler", os.O_WRONLY | os.O_CREAT)
+            try:
+                while True:
+                    os.write(fd, b"\0" * 4096)
+            except OSError as e:
+                assert e.errno == errno.ENOSPC
+            finally:
+                os.close(fd)
+            os.truncate(where / "filler", (where / "filler").stat().st_size - free)
+        else:
+            remount = ["mount", "-o", "remount,ro", str(where)]
+            subprocess.run(remount, check=True, capture_output=True)
+        yield where
+    finally:
+        subprocess.run(["umount", str(where)], check=True)
+
+
+@pytest.mark.parametrize("state", ["full", "read-only"])
+def test_evaluate_render_and_export_on_a_disk_that_refuses_writes_are_one_line(
+    state, trained, tmp_path, capsys
+):
+    from jaxnav.evaluate.__main__ import main as evaluate_main
+    from jaxnav.export import main as export_main
+    from jaxnav.render import main as render_main
+
+    commands = {
+        "eval.json": lambda out: evaluate_main([str(trained), "--out", out, "--episodes", "1"]),
+        "traj.png": lambda out: render_main([str(trained), "--out", out, "--episodes", "1"]),
+        "traj.gif": lambda out: render_main([str(trained), "--out", out, "--episodes", "1"]),
+        "policy.npz": lambda out: export_main([str(trained), "--out", out]),
+    }
+    why = {"full": "no space left on device", "read-only": "read-only file system"}[state]
+    with small_filesystem(tmp_path / "disk", state) as disk:
+        before = nodes(disk)
+        for name, command in commands.items():
+            err = one_line_error(capsys, 4, command(str(disk / name)))
+            assert err.startswith("jaxnav.") and f"cannot write {disk / name}: {why}" in err
+            assert nodes(disk) == before, name  # nothing partial left behind
+
+
+def test_resume_of_a_run_whose_directory_is_read_only_is_one_line_then_completes(
+    tmp_path, capsys, monkeypatch, reference
+):
+    """A read-only bind mount over the unfinished run's directory: what a directory of another
+    user is to anyone but root."""
+    out = tmp_path / "run"
+    interrupted_after(out, monkeypatch, 2)
+    partial = run_dir.partial_dir(out)
+    bind = ["mount", "--bind", str(partial), str(partial)]
+    if subprocess.run(bind, capture_output=True).returncode != 0:
+        pytest.skip("a bind mount needs root")
+    try:
+        read_only = ["mount", "-o", "remount,ro,bind", str(partial)]
+        subprocess.run(read_only, check=True, capture_output=True)
+        before = nodes(partial)
+        capsys.readouterr()
+        err = one_line_error(capsys, 4, train_main(["--resume", str(out)]))
+        assert err.startswith(f"jaxnav.train: error: cannot write {partial}: read-only"), err
+        assert err.endswith(f"continue with: python -m jaxnav.train --resume {out}"), err
+        assert nodes(partial) == before
+    finally:
+        subprocess.run(["umount", str(partial)], check=True)
+    assert train_main(["--resume", str(out)]) == 0
+    capsys.readouterr()
+    assert_complete(out, reference)
+
+
+def test_training_on_a_full_disk_is_one_line_without_orbax_tracebacks_and_resumes(
+    tmp_path, reference
+):
+    """A real full disk under the whole command (orbax logs it, tensorstore's leftover writes
+    print closed-event-loop tracebacks until the process ends): one line, exit 4, also on a
+    --resume while the disk is still full; freed, the run resumes to the reference."""
+    train = [sys.executable, "-m", "jaxnav.train"]
+    with small_filesystem(tmp_path / "disk", "full", size="1m", free=32 * 1024) as disk:
+        out = disk / "run"
+        for argv in ([*TINY, "--out", str(out)], ["--resume", str(out)]):
+            proc = subprocess.run([*train, *argv], capture_output=True, text=True, timeout=300)
+            assert proc.returncode == 4, proc.stderr[-2000:]
+            assert proc.stderr.count("\n") == 1, proc.stderr[-2000:]
+            assert proc.stderr.startswith("jaxnav.train: no space left on device"), proc.stderr
+        (disk / "filler").unlink()
+        proc = subprocess.run([*train, "--resume", str(out)], capture_output=True, text=True)
+        assert proc.returncode == 0 and proc.stderr == "", proc.stderr[-2000:]
+        assert (out / "metrics.csv").read_text() == reference
+
+
+def test_orbax_records_are_only_held_back_when_a_write_fault_ends_the_run(caplog):
+    """Quieting a full disk hides no real error: other records pass at once, and the ones
+    held back are shown when no write fault was reported."""
+    import logging
+
+    from jaxnav.train import __main__ as train_cli
+
+    absl = logging.getLogger("absl")
+    hook = sys.unraisablehook
+    with caplog.at_level(logging.WARNING, logger="absl"):
+        with train_cli.quiet_write_faults():
+            absl.error("a real error")
+            absl.error("write failed: No space left on device")
+            assert [r.getMessage() for r in caplog.records] == ["a real error"]
+        assert [r.getMessage() for r in caplog.records][-1].endswith("No space left on device")
+        assert sys.unraisablehook is hook
+        caplog.clear()
+        with train_cli.quiet_write_faults():
+            absl.error("write failed: No space left on device")
+            error = OSError(errno.ENOSPC, "No space left on device", "x")
+            assert train_cli.write_refused("jaxnav.train", error, "resume") == 4
+        assert caplog.records == [] and sys.unraisablehook is not hook
+    sys.unraisablehook = hook
 
 
 # ------------------------------------------------------------------ hostile inputs

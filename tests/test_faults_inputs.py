@@ -51,6 +51,78 @@ def test_maze_and_bank_cell_size_out_of_range_is_refused(cell_size):
         mazes.random_maze_bank(1, rows=4, cols=4, cell_size=cell_size)
 
 
+def open_maze_file(path: Path, side: int) -> Path:
+    """A ``side`` x ``side`` maze file without walls, S and G in opposite corners."""
+    rows = ["." * side for _ in range(side)]
+    rows[0], rows[-1] = "S" + rows[0][1:], rows[-1][:-1] + "G"
+    path.write_text("\n".join(rows) + "\n")
+    return path
+
+
+def test_a_maze_file_too_large_for_its_geodesic_table_is_refused_before_it_is_built(
+    tmp_path, capsys
+):
+    """200 x 200 cells, a table from every cell: 3 GiB (the env built for minutes before).
+    152 x 152 is the largest square under the 1 GiB limit; num_goal_cells lifts it."""
+    big = open_maze_file(tmp_path / "big.txt", 200)
+    with pytest.raises(ValueError, match=r"200 x 200 cells .* 3,052 MiB \(at most 1,024\)"):
+        registration.env_config("RobotMaze-v0", maze_file=str(big))
+    with pytest.raises(ValueError, match="num_goal_cells=32"):
+        jaxnav.make("RobotMaze-v0", maze_file=str(big))
+    registration.env_config("RobotMaze-v0", maze_file=str(big), num_goal_cells=32)
+    with pytest.raises(ValueError, match="153 x 153 cells"):
+        registration.env_config("RobotMaze-v0", maze_file=str(open_maze_file(big, 153)))
+    registration.env_config("RobotMaze-v0", maze_file=str(open_maze_file(big, 152)))
+    out = tmp_path / "r"
+    argv = [*ROBOT, "--maze-file", str(open_maze_file(big, 200)), "--out", str(out)]
+    err = one_line_error(capsys, 2, train_main(argv))
+    assert f"maze_file={str(big)!r}" in err and "num_goal_cells" in err, err
+    assert not out.exists() and not (tmp_path / ".r.partial").exists()
+
+
+@pytest.mark.parametrize(
+    "argv, want",
+    [
+        (["--env", ""], "--env '': empty"),
+        (["--env", "  "], "--env '  ': empty"),
+        (["--env-arg", "size="], "--env-arg size given twice (5, then '')"),
+        (["--env-arg", "obs_mode=paper", "--env-arg", "obs_mode=full"], "obs_mode given twice"),
+        (["--maze-file", ""], "--maze-file: empty path ''"),
+        (["--maze-file", "m.txt", "--env-arg", "maze_file=n.txt"], "both given"),
+    ],
+)
+def test_empty_env_repeated_env_arg_and_empty_maze_file_are_refused(
+    argv, want, tmp_path, capsys
+):
+    """Each was a silent choice: the default env, the last value, the current directory."""
+    out = tmp_path / "r"
+    err = one_line_error(capsys, 2, train_main([*TINY_FLAGS, *argv, "--out", str(out)]))
+    assert want in err, err
+    assert not list(tmp_path.iterdir())  # nothing written
+
+
+def test_empty_env_is_refused_by_evaluate_and_render_too(capsys):
+    from jaxnav.evaluate.__main__ import main as evaluate_main
+    from jaxnav.render import main as render_main
+
+    for main in (evaluate_main, render_main):
+        err = one_line_error(capsys, 2, main(["--pretrained", "gridmaze-dqn", "--env", ""]))
+        assert "--env '': empty" in err, err
+
+
+@pytest.mark.parametrize("newline", ["\n", "\r\n"])
+def test_a_maze_file_with_a_utf8_bom_reads_as_without(newline, tmp_path):
+    text = newline.join(["cell_size: 1.5", "S..", ".#.", "..G", ""])
+    plain, bom = tmp_path / "plain.txt", tmp_path / "bom.txt"
+    plain.write_bytes(text.encode())
+    bom.write_bytes(b"\xef\xbb\xbf" + text.encode())  # what Notepad writes
+    a, b = mazes.load_maze(plain), mazes.load_maze(bom)
+    assert (a.grid == b.grid).all() and (a.start, a.goal, a.cell_size) == (b.start, b.goal, 1.5)
+    grid_only = tmp_path / "grid.txt"
+    grid_only.write_bytes(b"\xef\xbb\xbfS.\n.G\n")  # the BOM before a grid row, not a header
+    assert mazes.load_maze(grid_only).grid.shape == (2, 2)
+
+
 # ------------------------------------------------------------------ 2, 3. every float, every bool
 def typed_fields(kind: str) -> list[tuple[str, str]]:
     """(env id, field) for every field of the grid and robot configs annotated ``kind``."""

@@ -1,7 +1,7 @@
 """``python -m jaxnav.evaluate``: a trained run (greedy) or the random agent on fresh episodes,
 written to ``RUN/eval.json`` (the trained policy on the run's env; other policies, envs and
 overrides each get their own file, see ``default_out_name``) with the table printed. Bad input
-is one line on stderr, exit code 2.
+is one line on stderr, exit code 2; a write the machine refuses (a full disk), exit code 4.
 """
 
 from __future__ import annotations
@@ -24,6 +24,7 @@ from jaxnav.cli import (
     check_policy_source,
     env_from_args,
     fail,
+    write_failed,
 )
 from jaxnav.evaluate import (
     SEED_STATISTICS,
@@ -34,7 +35,7 @@ from jaxnav.evaluate import (
     seed_statistics,
 )
 from jaxnav.programs import enable_compilation_cache
-from jaxnav.safe_io import check_output_file
+from jaxnav.safe_io import WriteFault, check_output_file
 
 
 def parser() -> argparse.ArgumentParser:
@@ -132,7 +133,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         **({"maze_names": names} if names else {}),
     }
     if out is not None:
-        run_dir.write_json(out, result)
+        try:
+            run_dir.write_json(out, result)
+        except WriteFault as e:
+            return write_failed(prog, e)
     print_eval_table(config.env, {args.policy: mean_of(rows)})
     if args.episodes % mazes:
         print(

@@ -2,7 +2,8 @@
 
 Bad input of any kind is one line on stderr naming the value, exit code 2, nothing written.
 Exit codes: 0 done, 2 bad input, 3 diverged (NaN/Inf; the last good checkpoint is kept),
-4 no space left on device (the last good checkpoint is kept), 128 + signal number when
+4 no space left on device or another write the machine refused, e.g. ``--resume`` of a run
+whose directory is read-only (the last good checkpoint is kept), 128 + signal number when
 stopped by SIGINT (130) or SIGTERM (143) after saving a checkpoint.
 An unfinished run lives in the hidden sibling ``.NAME.partial`` of its ``--out`` and continues
 with ``--resume OUT``; it is renamed to ``OUT`` when complete.
@@ -11,14 +12,16 @@ with ``--resume OUT``; it is renamed to ``OUT`` when complete.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
+import logging
 import shlex
 import shutil
 import signal
 import sys
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -38,6 +41,7 @@ from jaxnav.config import MAX_STEPS, TrainConfig
 from jaxnav.presets import train_defaults
 from jaxnav.programs import enable_compilation_cache
 from jaxnav.registration import registered_envs
+from jaxnav.safe_io import WRITE_FAULTS, write_fault_errno
 from jaxnav.train import Trainer
 
 EXIT_DIVERGED = 3
@@ -354,7 +358,7 @@ def _main(
     except ValueError as e:
         return fail(prog, str(e))
     except OSError as e:
-        return runner.disk_full(prog, e, resume)
+        return write_refused(prog, e, resume)
     sinks: list[loggers.MetricsLogger] = []
     progress = runner.Progress(config, args.quiet or not runner.is_primary(), sinks)
 
@@ -379,7 +383,7 @@ def _main(
         f"if stopped, continue with: {resume}",
         flush=True,
     )
-    with runner.stop_on_signals(saving.signals):
+    with runner.stop_on_signals(saving.signals), quiet_write_faults():
         try:
             state, metrics, compile_s, train_s = runner.train_seeds(
                 trainer, run_dir.seed_keys(config), progress, saving
@@ -390,8 +394,8 @@ def _main(
             print(f"{prog}: diverged: {e}", file=sys.stderr)
             return EXIT_DIVERGED
         except Exception as e:  # noqa: BLE001 (orbax wraps a full disk in several kinds)
-            if runner.is_disk_full(e):
-                return runner.disk_full(prog, e, resume)
+            if runner.is_disk_full(e) or write_fault_errno(e) is not None:
+                return write_refused(prog, e, resume)
             if isinstance(e, ValueError):  # a checkpoint that does not restore
                 return fail(prog, str(e))
             raise
@@ -411,8 +415,103 @@ def _main(
             except ValueError as e:  # --out became something the run cannot be renamed to
                 return fail(prog, str(e))
             except OSError as e:
-                return runner.disk_full(prog, e, resume)
+                return write_refused(prog, e, resume)
     return 0
+
+
+# what a third-party error about a refused write says (orbax logs them as text)
+WRITE_FAULT_TEXT = (
+    "No space left on device",
+    "Disk quota exceeded",
+    "Read-only file system",
+    "Permission denied",
+    "Input/output error",
+)
+
+
+class HoldWriteFaults(logging.Filter):
+    """Holds back a log record about a write the machine refused: orbax logs a full disk, with
+    tracebacks, before it raises it, and jaxnav reports it in one line (``write_refused``).
+    The records held are in ``held``, shown after all when no write fault ends the run."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.held: list[logging.LogRecord] = []
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        error = record.exc_info[1] if record.exc_info else None
+        text = record.getMessage()
+        if (error is not None and (runner.is_disk_full(error) or write_fault_errno(error))) or any(
+            fault in text for fault in WRITE_FAULT_TEXT
+        ):
+            self.held.append(record)
+            return False
+        return True
+
+
+def is_closed_loop_error(error: BaseException | None) -> bool:
+    """The error of a tensorstore write finishing after orbax's save failed and closed its
+    event loop: a leftover of a refused write, reported (once, in one line) by jaxnav."""
+    return isinstance(error, RuntimeError) and str(error) == "Event loop is closed"
+
+
+def drop_closed_loop_errors() -> Any:
+    """Make ``sys.unraisablehook`` (through which tensorstore reports its callbacks' errors)
+    drop ``is_closed_loop_error`` errors, showing every other as before; returns the hook."""
+    previous, closed_loop = sys.unraisablehook, is_closed_loop_error  # run as __main__, this
+    # module's globals are gone when the interpreter ends, while tensorstore still reports
+
+    def hook(unraisable: Any) -> None:
+        if not closed_loop(unraisable.exc_value):
+            previous(unraisable)
+
+    sys.unraisablehook = hook
+    return hook
+
+
+@contextlib.contextmanager
+def quiet_write_faults() -> Iterator[None]:
+    """Within the block, orbax's (absl's) log records of a refused write are held back, and
+    the closed-event-loop tracebacks tensorstore reports after it are dropped; every other
+    record and error is shown as before. When ``write_refused`` reported a fault (it keeps
+    the hook: the leftover writes end after the command's last line) the held records are
+    dropped; otherwise they are shown as they would have been."""
+    absl_logger = logging.getLogger("absl")
+    hold = HoldWriteFaults()
+    absl_logger.addFilter(hold)
+    previous = sys.unraisablehook
+    hook = drop_closed_loop_errors()
+    try:
+        yield
+    finally:
+        absl_logger.removeFilter(hold)
+        if sys.unraisablehook is hook:  # no write fault reported: nothing is hidden
+            sys.unraisablehook = previous
+            for record in hold.held:
+                absl_logger.handle(record)
+
+
+def write_refused(prog: str, error: Exception, resume: str) -> int:
+    """Report a write the machine refused in one line with the command that continues the
+    run, exit code 4: a full disk as ``runner.disk_full``, a read-only or forbidden run
+    directory (``safe_io.WRITE_FAULTS``) naming the path; any other error is raised again."""
+    code = write_fault_errno(error)
+    if code is not None or runner.is_disk_full(error):
+        drop_closed_loop_errors()  # for good: they come until the process ends
+    if code is None or runner.is_disk_full(error):  # orbax's full disk is only text in its error
+        return runner.disk_full(prog, error, resume)
+    cause: BaseException | None = error
+    for _ in range(20):  # the OSError that names the path, down a chain of causes
+        if cause is None or getattr(cause, "filename", None) is not None:
+            break
+        cause = cause.__cause__ or cause.__context__
+    where = getattr(cause, "filename", None) or "the run directory"
+    print(
+        f"{prog}: error: cannot write {where}: {WRITE_FAULTS[code]}; then continue with: "
+        f"{resume}",
+        file=sys.stderr,
+    )
+    return EXIT_DISK_FULL
 
 
 def stopped(prog: str, e: runner.Interrupted, resume: str) -> int:

@@ -344,11 +344,17 @@ class RobotConfig:
                 len(loaded), loaded[0].rows, loaded[0].cols, self.num_goal_cells or None
             )
             if table > MAX_GOAL_TABLE_BYTES:
+                given = (
+                    f"maze_file={self.maze_file!r}"
+                    if self.maze_files is None
+                    else f"maze_files={self.maze_files!r}"
+                )
                 raise ValueError(
-                    f"{loaded[0].name}: {len(loaded)} maze(s) of {loaded[0].rows} x "
-                    f"{loaded[0].cols} cells need a {table / 2**20:,.0f} MiB geodesic table (at "
-                    f"most {MAX_GOAL_TABLE_BYTES / 2**20:,.0f}); keep fewer goal cells per maze, "
-                    "e.g. num_goal_cells=32, or use a larger map_cell_size"
+                    f"{given}: {len(loaded)} maze(s) of {loaded[0].cols} x {loaded[0].rows} "
+                    f"cells with num_goal_cells={self.num_goal_cells} (0: every cell) need a "
+                    f"geodesic progress table of {table / 2**20:,.0f} MiB (at most "
+                    f"{MAX_GOAL_TABLE_BYTES / 2**20:,.0f}); keep fewer goal cells per maze, e.g. "
+                    "num_goal_cells=32, or use a larger map_cell_size"
                 )
         for maze in loaded:
             mazes.check_slots(maze, self.num_wall_slots)

@@ -430,7 +430,9 @@ def _read_maze(name: str) -> Maze:
 
 
 def parse_maze(text: str, name: str = "<string>", num_slots: int | None = None) -> Maze:
-    """Parse a maze from text (format in the module docstring); errors as ``load_maze``."""
+    """Parse a maze from text (format in the module docstring); errors as ``load_maze``.
+    A leading UTF-8 byte order mark (Windows editors write one) is skipped."""
+    text = text.removeprefix("\ufeff")
 
     def fail(what: str, line: int | None = None, col: int | None = None) -> MazeFileError:
         return MazeFileError(name, what, line, col)
