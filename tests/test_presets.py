@@ -182,3 +182,19 @@ def test_a_replay_ratio_giving_no_whole_updates_is_refused_with_a_batch_size(fie
 def test_replay_ratio_is_dqn_only():
     pqn = TrainConfig.for_env("GridMaze-v0", algo="pqn", batch_size=1000)
     pqn.validate()  # 8 * 64 / 1000: no whole number, but PQN samples no replay
+
+
+def test_help_shows_each_default_once_the_named_presets():
+    """``--help`` gives one default a flag: the preset of the ``--env`` and ``--algo`` beside
+    it, named in the description; without them the paper's grid DQN's."""
+    plain = " ".join(train_parser([]).format_help().split())
+    assert "Defaults shown: GridMaze-v0 with --algo dqn" in plain
+    assert "steps per seed (default: 240000)" in plain and "; --algo" not in plain
+    argv = ["--env", "RobotNav-v0", "--algo", "pqn", "--help"]
+    text = " ".join(train_parser(argv).format_help().split())
+    assert "Defaults shown: RobotNav-v0 with --algo pqn" in text
+    assert f"steps per seed (default: {GENERALIST_PQN['total_timesteps']})" in text
+    assert f"(default: {GENERALIST_PQN['num_envs']})" in text and "; robot envs" not in text
+    # a bad id in argv leaves the grid's defaults; parsing the flags then names it
+    bad = train_parser(["--env", "x"]).format_help()
+    assert "Defaults shown: GridMaze-v0" in " ".join(bad.split())

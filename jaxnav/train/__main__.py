@@ -38,7 +38,6 @@ from jaxnav.cli import (
     parse_bool,
 )
 from jaxnav.config import MAX_STEPS, TrainConfig
-from jaxnav.presets import train_defaults
 from jaxnav.programs import enable_compilation_cache
 from jaxnav.registration import registered_envs
 from jaxnav.safe_io import WRITE_FAULTS, write_fault_errno
@@ -125,24 +124,33 @@ class _DefaultsShown(argparse.ArgumentDefaultsHelpFormatter):
         return super()._get_help_string(action)
 
 
-def parser() -> argparse.ArgumentParser:
+def preset_defaults(argv: Sequence[str] | None) -> TrainConfig:
+    """The defaults ``--help`` shows: the preset of the ``--env`` and ``--algo`` in ``argv``
+    (``TrainConfig.for_env``), the paper's grid DQN without them or where they are not valid
+    (parsing the real flags then names the bad one)."""
+    pre = argparse.ArgumentParser(add_help=False)
+    pre.add_argument("--env", default="GridMaze-v0")
+    pre.add_argument("--algo")
+    known, _ = pre.parse_known_args(list(sys.argv[1:] if argv is None else argv))
+    algo = {} if known.algo is None else {"algo": known.algo}
+    try:
+        return TrainConfig.for_env(known.env, **algo)
+    except (ValueError, TypeError):
+        return TrainConfig()
+
+
+def parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
+    """The flags; ``--help`` shows each default once, the preset's for the ``--env`` and
+    ``--algo`` in ``argv`` (``python -m jaxnav.train --env RobotNav-v0 --algo pqn --help``)."""
+    defaults = preset_defaults(argv)
     p = Parser(
         prog="python -m jaxnav.train",
         description="Train a (dueling, double) DQN, a PQN or a PPO policy; all seeds and the "
-        "whole run are one program.",
+        f"whole run are one program. Defaults shown: {defaults.env} with --algo "
+        f"{defaults.algo} (its preset, jaxnav.presets); add --env and --algo to --help for "
+        "another's.",
         formatter_class=_DefaultsShown,
     )
-    defaults = TrainConfig()
-    env_defaults = {
-        "robot envs": train_defaults("RobotSimple-v0"),
-        "--algo pqn": train_defaults("GridMaze-v0", "pqn"),
-        "--algo pqn on robot envs": train_defaults("RobotSimple-v0", "pqn"),
-        "--algo pqn on RobotNav-v0": train_defaults("RobotNav-v0", "pqn"),
-        "--algo ppo": train_defaults("GridMaze-v0", "ppo"),
-        "--algo ppo on robot envs": train_defaults("RobotSimple-v0", "ppo"),
-        "--algo ppo on RobotNav-v0": train_defaults("RobotNav-v0", "ppo"),
-        "GridMaze-Random-v0": train_defaults("GridMaze-Random-v0"),  # its default: pqn
-    }
     for f in dataclasses.fields(TrainConfig):
         if f.name == "env_kwargs":
             continue
@@ -156,9 +164,7 @@ def parser() -> argparse.ArgumentParser:
             kind, meta = _devices, "{N,all}"
         else:
             kind, meta = type(default), None
-        shown = f"default: {default}" + "".join(
-            f"; {env}: {tuned[f.name]}" for env, tuned in env_defaults.items() if f.name in tuned
-        )
+        shown = f"default: {default}"
         # None = not given: the env's tuned default (TrainConfig.for_env) fills it in
         help_text = f"{HELP[f.name]} ({shown})" if f.name in HELP else f"({shown})"
         p.add_argument(flag, type=kind, default=None, metavar=meta, help=help_text)
@@ -257,7 +263,7 @@ def prepare_training(
 def _prepare_training(
     argv: list[str],
 ) -> tuple[argparse.Namespace, TrainConfig, Path, Path, list[str], Trainer]:
-    args = parser().parse_args(argv)
+    args = parser(argv).parse_args(argv)
     if args.tensorboard:  # asked for but not installed: say so before anything is written
         loggers.require("tensorboardX", "--tensorboard")
     if args.wandb:
