@@ -17,8 +17,8 @@ from jaxnav.registration import registered_envs
 # returns and gamma 0.95 (1-step returns with the grid's gamma 0.9 plateau near 0.86 success on
 # RobotSimple-v0), and a longer run, since paths take ~40 control steps rather than ~10 cells.
 # 64 envs with batch 512 keep the replay ratio of 16 envs with batch 128 (8 sampled transitions
-# per env step) in a quarter of the iterations, and scored higher on one H100 and this CPU
-# (0.945 / 0.961 vs 0.940 / 0.934; benchmarks/results/**/*_robot_*).
+# per env step) in a quarter of the iterations, and scored higher on a GPU and a CPU
+# (docs/performance.md).
 ROBOT_DQN: dict[str, Any] = {
     "num_envs": 64,
     "batch_size": 512,

@@ -305,8 +305,7 @@ def regression_loss(
 # action's Q-value and the largest |Q|. A loop of gradient steps keeps their running sums (max
 # for q_max), each row apart: on a GPU a reduction to a scalar is a kernel, and three a step
 # were 5 of the DQN's 70 kernels a gradient step; sums per row fuse into the kernels that
-# compute the rows (GridMaze-v0's PQN at 32,768 envs: 5.72 -> 5.52 ms an iteration on one H200,
-# docs/results-history.md).
+# compute the rows (measured: docs/performance.md).
 DIAGNOSTICS = ("loss", "q_mean", "q_max")
 
 

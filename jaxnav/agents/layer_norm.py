@@ -56,21 +56,11 @@ class Blocks(NamedTuple):
 
 
 # Chosen from each kernel timed alone (``python -m benchmarks.layer_norm_blocks``), then
-# trained with:
-# - 1024 and 2048 on one H100 at 16,384 rows, the RobotNav-v0 preset's minibatch
-#   (``layer_norm_blocks_h100``, docs/results-history.md): a few hundred instances looping over
-#   small blocks, the next block's loads issued while the last one computes; the preset
-#   trained at 7.34M env steps/s with them where instances walking 2-4 blocks unrolled
-#   trained at 7.15M (``train_throughput_h100_RobotNav-v0`` and the
-#   archived ``*_unrolled_walk``, docs/results-history.md). 2048 keeps the blocks measured
-#   before the loop.
-# - 512, 256 and 128 on one H200 at 65,536 rows, GridMaze-v0's minibatch at 32,768 envs
-#   (``layer_norm_blocks_h200``, docs/results-history.md): the fastest there; the grid's PQN
-#   iteration took 5.56 ms with them against 5.78-5.80 with the blocks chosen at 16,384 rows,
-#   and RobotNav-v0's 25.46 against 25.50 (median of 7 and 5 calls, the same machine).
-# - 64 on one H200 at 65,536 rows (``layer_norm_blocks_h200_64``, docs/results-history.md): the
-#   grid network's last hidden layer, which took the jnp form before; its PQN iteration took
-#   5.85 ms against 6.12-6.15.
+# trained with (measured: docs/performance.md):
+# - 1024 and 2048 at 16,384 rows, the RobotNav-v0 preset's minibatch: a few hundred instances
+#   looping over small blocks, the next block's loads issued while the last one computes.
+# - 512, 256 and 128 at 65,536 rows, GridMaze-v0's minibatch at 32,768 envs.
+# - 64 at 65,536 rows: the grid network's last hidden layer, which took the jnp form before.
 # Backward instances add up their blocks' column sums of the parameter gradients in registers
 # and write them once: fewer instances, fewer partial sums to reduce.
 FORWARD_BLOCKS: dict[int, Blocks] = {
@@ -299,8 +289,7 @@ def _backward_pallas(grad, z, dense_bias, scale, bias, mean, rstd):
 @functools.partial(jax.custom_vjp, nondiff_argnums=(0,))
 def _layer_norm_relu(kernel: bool, z, dense_bias, scale, bias):
     # Undifferentiated calls (acting, evaluation) keep no residuals: XLA fuses the jnp form with
-    # the products around it, where the kernel is a launch of its own (GridMaze-v0's PQN at
-    # 32,768 envs on one H200: 1.2% less an iteration; docs/results-history.md)
+    # the products around it, where the kernel is a launch of its own (docs/performance.md)
     return _forward_jnp(z, dense_bias, scale, bias)[0]
 
 

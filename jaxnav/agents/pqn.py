@@ -67,9 +67,8 @@ def shuffled_rows(key: jax.Array, n: int, rounds: int = 4) -> jax.Array:
     row indices computed elementwise: ``rounds`` rounds of xor with a random key, product with
     a random odd number and xor with the upper half shifted down, each a bijection modulo
     ``2**b`` (the product carries low bits up, the shift high bits down). It replaces the two
-    radix sorts of ``jax.random.permutation`` at every epoch's start (262,144 rows in
-    RobotNav-v0's preset: about 0.1 ms of sort kernels an epoch on an H100, and an iteration
-    about 1 ms shorter without them, docs/results-history.md). Other ``n`` take
+    radix sorts of ``jax.random.permutation`` at every epoch's start (measured:
+    docs/performance.md). Other ``n`` take
     ``jax.random.permutation``.
     """
     if n & (n - 1):

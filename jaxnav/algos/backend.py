@@ -15,10 +15,8 @@ def on_gpu() -> bool:
 def updates_unroll(steps: int, gpu_unroll: int) -> int:
     """How many of a loop's ``steps`` gradient steps one trip runs, so that XLA schedules
     across steps: on a GPU up to the algorithm's ``gpu_unroll`` (PQN 16 of an epoch's
-    minibatches: RobotNav-v0's preset trained 25.48 ms an iteration against 25.61-25.86 with
-    8 on one H200, at no more compile; the DQN 2 of its updates: 3.32 -> 3.24 ms an iteration
-    of GridMaze-v0 at 4,096 envs on one H200, benchmarks/RESULTS.md); on a CPU 1, where the
-    loop costs nothing to speak of and compiles stay short."""
+    minibatches, the DQN 2 of its updates; measured: docs/performance.md); on a CPU 1, where
+    the loop costs nothing to speak of and compiles stay short."""
     return min(steps, gpu_unroll) if on_gpu() else 1
 
 
@@ -26,16 +24,15 @@ def returns_unrolled() -> bool:
     """Whether PQN's lambda-returns run as straight-line code (``pqn.lambda_returns``'s
     ``unrolled``): on a GPU, where each trip of the loop costs a round trip to the host, at
     no measurable cost in compile time; on a CPU the loop, whose trips cost nothing to speak
-    of. The rollout's own loop stays rolled: two env steps a trip saved about 0.7 ms of
-    RobotNav-v0's 31 ms iteration for about 5 s more compile, a loss below billions of env
-    steps (benchmarks/RESULTS.md)."""
+    of. The rollout's own loop stays rolled: unrolling it saved little and cost seconds of
+    compile (docs/performance.md)."""
     return on_gpu()
 
 
 def target_update_select() -> bool:
     """Whether the DQN's target update is a select over the parameters, as on a GPU, where
-    a cond every gradient step cost more (H100, GridMaze-v0 at 4,096 envs: 3.4 -> 3.2 s of
-    training, README); on a CPU the cond skips the parameter-sized work."""
+    a cond every gradient step cost more (docs/performance.md); on a CPU the cond skips the
+    parameter-sized work."""
     return jax.default_backend() != "cpu"
 
 

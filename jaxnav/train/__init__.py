@@ -62,21 +62,15 @@ LEGACY_ALGO_FIELDS = ("target_params", "buffer")
 # program's kernels into command buffers (CUDA graphs) that by default run them one after
 # another; "CONCURRENT" gives the graph the kernels' data dependencies instead, so kernels that
 # do not wait on each other run side by side (an env step's many small kernels, a backward
-# pass's two products per layer). The same kernels compute the same values. On one H100 it
-# shortened an iteration of RobotNav-v0's PQN preset from 36.0 to 32.4 ms, of GridMaze-v0's
-# from 1.66 to 1.41 ms, of RobotNav-v0's DQN preset from 0.27 to 0.19 ms (docs/results-history.md).
-# The command buffers also take loops and conditionals (WHILE, CONDITIONAL) as CUDA graph nodes,
-# so the device runs the epochs' and minibatches' trips without the host launching each one:
-# 31.0 -> 29.3 ms an iteration of RobotNav-v0's PQN preset (benchmarks.xla_options). The
+# pass's two products per layer). The same kernels compute the same values. The command
+# buffers also take loops and conditionals (WHILE, CONDITIONAL) as CUDA graph nodes, so the
+# device runs the epochs' and minibatches' trips without the host launching each one. The
 # rollout's loop and the loop of iterations stay with the host: XLA copies their stacked rows
 # by memcpys the host issues (docs/results-history.md: one graph for all was no faster). Options
 # given here replace XLA's default list, which the first six entries repeat.
 # Copy insertion by region analysis: XLA proves more of a loop's carried buffers free to update
-# in place and copies fewer of them each trip; no arithmetic changes. On one H200 an iteration
-# of RobotNav-v0's PQN preset took 24.12 and 24.28 ms with it against 25.17 and 25.13, of the
-# grid's bfloat16 PQN 5.60 against 5.65, of the grid's DQN 3.12 and 3.23 against 3.25 and
-# 3.16 (xla_options_h200_copy_insertion_* in docs/results-history.md).
-# Other backends ignore XLA:GPU's options.
+# in place and copies fewer of them each trip; no arithmetic changes. Each option's effect:
+# docs/performance.md. Other backends ignore XLA:GPU's options.
 COMPILER_OPTIONS = {
     "xla_gpu_command_buffer_scheduling_mode": "CONCURRENT",
     "xla_gpu_enable_command_buffer": (
@@ -316,8 +310,8 @@ class Trainer:
         ep_return = ts.episode_return + reward
         ep_length = ts.episode_length + 1
         # per env, not summed here: a sum over envs each step was a reduction into which XLA
-        # fused (so recomputed) the env's collision test, 64 us a step of RobotNav-v0's 8,192
-        # envs on an H100; summed over the rollout's stacked rows it reads stored values
+        # fused (so recomputed) the env's collision test; summed over the rollout's stacked
+        # rows it reads stored values
         stats = {
             "episodes": done,  # flags: a byte an env a step, counted by the sum
             "return_sum": jnp.where(done, ep_return, 0.0),
