@@ -557,3 +557,29 @@ def test_map_free_odometry_fields_read_the_goal_far_the_last_action_and_the_radi
         assert frame[-1] == pytest.approx(float(s.radius))  # the episode's radius stays
     with pytest.raises(ValueError, match="goal_range=-1.0"):
         jaxnav.make("RobotSimple-v0", backend="kinematic", goal_range=-1.0)
+
+
+def test_a_drawn_radius_fits_the_mazes_narrowest_gap():
+    """radius_range is capped per maze at half its narrowest gap less FIT_MARGIN: 0.5 m
+    corridors hold robots up to 0.2 m, JaxNav levels' 1 m gaps up to the range's top."""
+    from jaxnav.envs.maze_algorithms import narrowest_gap
+    from jaxnav.envs.robot.env import FIT_MARGIN
+
+    grid = np.zeros((5, 6), bool)
+    grid[2, :4] = True  # a wall with a 2-cell gap at the right edge
+    assert narrowest_gap(grid) == 2 and narrowest_gap(np.ones((2, 2), bool)) == 0
+    grid[:, 4] = True
+    assert narrowest_gap(grid) == 1  # the last column: a 1-cell corridor
+    families = ("corridors", "jaxnav")
+    env, params = jaxnav.make(
+        "RobotNav-v0", num_layouts=8, families=families, radius_range=(0.1, 0.24)
+    )
+    fit = np.asarray(params.bank.fit_radius)
+    gaps = [narrowest_gap(np.asarray(g)) for g in params.bank.grid]
+    np.testing.assert_allclose(fit, np.array(gaps) * 0.5 / 2 - FIT_MARGIN, atol=1e-6)
+    assert fit[1::2].min() >= 0.45 - 1e-6  # jaxnav levels: 2 fine cells = 1 m at least
+    keys = jax.random.split(KEY, 256)
+    _, s = jax.vmap(env.reset, in_axes=(0, None))(keys, params)
+    radius, layout = np.asarray(s.radius), np.asarray(s.layout)
+    assert (radius <= np.minimum(0.24, fit[layout]) + 1e-6).all() and (radius >= 0.1).all()
+    assert radius[layout % 2 == 1].max() > 0.2  # the jaxnav levels draw the whole range

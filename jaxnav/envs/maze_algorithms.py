@@ -212,3 +212,25 @@ def largest_region_cell(walls: np.ndarray) -> Cell:
     if not len(kept):
         raise ValueError("the maze has no free cell")
     return int(kept[0, 0]), int(kept[0, 1])
+
+
+def narrowest_gap(walls: np.ndarray) -> int:
+    """The narrowest passage of a grid, in cells: the least, over free cells, of the shorter of
+    the cell's horizontal and vertical free runs (a 1-cell corridor or door gives 1; the
+    grid's edge bounds a run as a wall does). 0 for a grid with no free cell."""
+    free = ~np.asarray(walls, bool)
+    if not free.any():
+        return 0
+
+    def runs(rows: np.ndarray) -> np.ndarray:
+        """Each free cell's run length along axis 1."""
+        out = np.zeros(rows.shape, np.int64)
+        for r, line in enumerate(rows):
+            padded = np.concatenate([[False], line, [False]])
+            edges = np.flatnonzero(padded[1:] != padded[:-1]).reshape(-1, 2)
+            for start, stop in edges:
+                out[r, start:stop] = stop - start
+        return out
+
+    across = np.minimum(runs(free), runs(free.T).T)
+    return int(across[free].min())

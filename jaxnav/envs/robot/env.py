@@ -101,7 +101,12 @@ from flax import struct
 
 from jaxnav import spaces
 from jaxnav.environment import Environment, EnvParams, EnvState, is_concrete
-from jaxnav.envs.maze_algorithms import FLOAT32_MAX, check_fields, first_blocked_cell
+from jaxnav.envs.maze_algorithms import (
+    FLOAT32_MAX,
+    check_fields,
+    first_blocked_cell,
+    narrowest_gap,
+)
 from jaxnav.envs.robot import generators, geometry, jaxnav_levels, mazes, occupancy
 
 ACTION_NAMES = ("forward", "backward", "turn_left", "turn_right")
@@ -111,6 +116,7 @@ LASER_SCALE = 10.0 * math.sqrt(2.0)  # Table I: sensors normalized by their maxi
 MAX_BANK_CELLS = 4_000_000  # random mazes are generated in Python: about 25 s at this size
 MAX_STEP_CELLS = 100  # a control step may cross at most this many cells (bounds the sub-steps)
 MAX_WAYPOINT_DISTANCE = 10.0  # metres
+FIT_MARGIN = 0.05  # metres a drawn radius leaves each side of a maze's narrowest gap
 MAX_WAYPOINT_CELLS = 64  # the lookahead is unrolled, one step per cell
 NUM_LASERS = 7  # the paper's; RobotConfig.num_lasers' default
 # the geodesic table's bytes (int16[B, goals, rows, cols]); beyond this a bank is refused, with
@@ -584,6 +590,10 @@ class RobotNav(Environment[RobotState, RobotParams]):
         self.layout_origins = tuple(m.origin for m in maze_list)
         c = self.config
         self._bank = mazes.stack_mazes(maze_list, self.num_wall_slots, c.num_goal_cells or None)
+        # the largest radius that passes each maze's narrowest gap with FIT_MARGIN to spare
+        gaps = np.array([narrowest_gap(m.grid) for m in maze_list], np.float32)
+        fit = np.maximum(gaps * self._bank.cell_size / 2 - FIT_MARGIN, 0.0)
+        self._bank = self._bank.replace(fit_radius=jnp.asarray(fit, jnp.float32))
         self.arena = np.asarray(self._bank.size_m, np.float32)
         # the waypoint's lookahead in whole cells of this maze (0: none)
         self.waypoint_steps = (
@@ -673,7 +683,7 @@ class RobotNav(Environment[RobotState, RobotParams]):
         goal = jnp.asarray(goal, jnp.float32)
         layout = jnp.asarray(layout, jnp.int32)
         # keys of their own (folded in), apart from the start, goal and heading draws
-        robot = self._episode_robot(jax.random.fold_in(key, 2))
+        robot = self._episode_robot(jax.random.fold_in(key, 2), params, layout)
         radius = robot.get("radius", self.config.radius)
         frame = self._frame(pose, goal, layout, params, None, radius)
         frame = self._sense(frame, jax.random.fold_in(key, 1))
@@ -766,16 +776,24 @@ class RobotNav(Environment[RobotState, RobotParams]):
         return state.pose, state.goal, state.layout
 
     # -- noise and randomization ------------------------------------------------------
-    def _episode_robot(self, key: jax.Array) -> dict[str, jax.Array]:
+    def _episode_robot(
+        self, key: jax.Array, params: RobotParams, layout: jax.Array
+    ) -> dict[str, jax.Array]:
         """The per-episode radius, speed and turn speed drawn where the config gives a range
-        (``RobotState`` fields; the others are left out, None)."""
+        (``RobotState`` fields; the others are left out, None). The radius's range is capped
+        at what passes the maze's narrowest gap (``fit_radius``), so no episode has a robot
+        that cannot reach its goal."""
         c = self.config
         drawn = {}
         for i, name in enumerate(("radius", "speed", "turn_speed")):
             bounds = getattr(c, f"{name}_range")
             if bounds is not None:
+                low, high = bounds
+                if name == "radius":
+                    high = jnp.minimum(high, params.bank.fit_radius[layout])
+                    low = jnp.minimum(low, high)
                 k = jax.random.fold_in(key, i)
-                drawn[name] = jax.random.uniform(k, (), jnp.float32, bounds[0], bounds[1])
+                drawn[name] = jax.random.uniform(k, (), jnp.float32, low, high)
         return drawn
 
     def _command(

@@ -18,6 +18,12 @@ Families (``FAMILIES``):
 - ``pillars``: an open hall with square pillars (1 or 2 cells) on a jittered lattice, some
   left out.
 
+Not among the default ``FAMILIES``, for mixed banks (``families=(..., "jaxnav")``):
+
+- ``jaxnav``: a JaxNav level (``jaxnav_levels``) drawn at 2 x 2 fine cells a 1 m cell, 18 x 18
+  in the 20 x 20 arena. Unlike ``RobotJaxNav-v0``'s levels, the redraw below can drop a level
+  whose filled pockets leave it too small, so heavy fills are a little rarer here.
+
 Every maze goes through ``fill_pockets``: free cells outside the largest connected region
 become walls, so any two free cells are joined and a random start and goal always have a path.
 A draw is redone (up to ``max_tries``) when fewer than ``MIN_FREE_FRACTION`` of the cells stay
@@ -37,6 +43,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from jaxnav.envs.maze_algorithms import check_int, fill_pockets
+from jaxnav.envs.robot.jaxnav_levels import INTERIOR, drawn_obstacles
 from jaxnav.envs.robot.mazes import Maze, random_segments
 
 FAMILIES = ("rooms", "corridors", "segments", "pillars")
@@ -163,12 +170,27 @@ def _pillars(rng: np.random.Generator, rows: int, cols: int) -> np.ndarray:
     return grid
 
 
+def _jaxnav(rng: np.random.Generator, rows: int, cols: int) -> np.ndarray:
+    """A JaxNav level (``jaxnav_levels``: 9 x 9 cells of 1 m, up to 47 random obstacles) on
+    the fine grid, 2 x 2 fine cells a level cell, at a random place in the arena; the rest is
+    wall."""
+    side = 2 * INTERIOR
+    grid = np.ones((rows, cols), bool)
+    r0, c0 = int(rng.integers(rows - side + 1)), int(rng.integers(cols - side + 1))
+    level = np.kron(drawn_obstacles(rng), np.ones((2, 2), bool))
+    grid[r0 : r0 + side, c0 : c0 + side] = level
+    return grid
+
+
 GENERATORS: dict[str, Generator] = {
     "rooms": _rooms,
     "corridors": _corridors,
     "segments": _segments,
     "pillars": _pillars,
+    "jaxnav": _jaxnav,  # not among the default FAMILIES: RobotNav-v0's bank stays as it was
 }
+# the smallest (sub-)arena a family draws on, in fine cells (default MIN_SUB)
+MIN_SIZE: dict[str, int] = {"jaxnav": 2 * INTERIOR}
 
 
 def check_families(families: Sequence[str]) -> tuple[str, ...]:
@@ -182,7 +204,7 @@ def check_families(families: Sequence[str]) -> tuple[str, ...]:
         raise ValueError("families=(): choose at least one of " + ", ".join(FAMILIES))
     for f in out:
         if not isinstance(f, str) or f not in GENERATORS:
-            raise ValueError(f"families: unknown family {f!r}; choices: {', '.join(FAMILIES)}")
+            raise ValueError(f"families: unknown family {f!r}; choices: {', '.join(GENERATORS)}")
     return out
 
 
@@ -207,9 +229,10 @@ def family_maze(
     rng = np.random.default_rng([_TAG, seed, index])
     for _ in range(max_tries):
         h, w = rows, cols
-        if rng.random() < SUB_ARENA_PROB and min(rows, cols) > MIN_SUB:
-            h = int(rng.integers(MIN_SUB, rows))
-            w = int(rng.integers(MIN_SUB, cols))
+        smallest = MIN_SIZE.get(family, MIN_SUB)
+        if rng.random() < SUB_ARENA_PROB and min(rows, cols) > smallest:
+            h = int(rng.integers(smallest, rows))
+            w = int(rng.integers(smallest, cols))
         grid = np.ones((rows, cols), bool)
         r0, c0 = int(rng.integers(rows - h + 1)), int(rng.integers(cols - w + 1))
         grid[r0 : r0 + h, c0 : c0 + w] = gen(rng, h, w)

@@ -134,6 +134,9 @@ class MazeBank:
     # cell is no goal cell; None for the full table
     goal_index: jax.Array | None = None
     goal_source: jax.Array | None = None
+    # float32[B] the largest robot radius that passes each maze's narrowest gap (the env sets
+    # it: a radius drawn per episode is capped there); None: not computed
+    fit_radius: jax.Array | None = None
 
     @property
     def num_mazes(self) -> int:
