@@ -167,3 +167,34 @@ class Algorithm:
         diagnostics: ``loss``, ``q_mean``, ``q_max`` and ``updated`` (1 if it took gradient
         steps)."""
         raise NotImplementedError
+
+
+class RolloutAlgorithm(Algorithm):
+    """An algorithm that learns from each rollout of ``num_envs x rollout_length`` steps in
+    ``num_epochs`` passes of ``num_minibatches`` gradient steps (PQN, PPO): their sizes and
+    check, written once."""
+
+    @classmethod
+    def validate(cls, config: Any) -> None:
+        if config.steps_per_iteration % config.num_minibatches:
+            raise ValueError(
+                f"num_minibatches={config.num_minibatches} does not divide the "
+                f"num_envs * rollout_length = {config.steps_per_iteration} transitions of a "
+                "rollout"
+            )
+
+    @classmethod
+    def updates_per_learning_iteration(cls, config: Any) -> int:
+        return config.num_epochs * config.num_minibatches
+
+    @classmethod
+    def minibatch_size(cls, config: Any) -> int:
+        return config.steps_per_iteration // config.num_minibatches
+
+    @classmethod
+    def kept_rows(cls, config: Any) -> int:
+        return config.rollout_length
+
+    @classmethod
+    def kept_sizes(cls, config: Any) -> str:
+        return f"rollout_length={config.rollout_length}"

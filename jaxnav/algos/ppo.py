@@ -21,7 +21,7 @@ from flax import struct
 
 from jaxnav.agents import pqn
 from jaxnav.algos import backend
-from jaxnav.algos.base import Algorithm, LossFn, TrainState, Transitions
+from jaxnav.algos.base import LossFn, RolloutAlgorithm, TrainState, Transitions
 
 # added to the advantages' standard deviation before dividing by it (PureJaxRL's)
 ADVANTAGE_EPS = 1e-8
@@ -120,37 +120,12 @@ def ppo_loss(
     return actor + vf_coef * value_loss(value, old_value, target, clip_eps, clip_value)
 
 
-class PPO(Algorithm):
+class PPO(RolloutAlgorithm):
     """A sampled policy and a value network over rollouts of many envs."""
 
     gpu_updates_unroll = 16
     outputs = "the policy's logits"
     acting = "sampled"
-
-    @classmethod
-    def validate(cls, config: Any) -> None:
-        if config.steps_per_iteration % config.num_minibatches:
-            raise ValueError(
-                f"num_minibatches={config.num_minibatches} does not divide the "
-                f"num_envs * rollout_length = {config.steps_per_iteration} transitions of a "
-                "rollout"
-            )
-
-    @classmethod
-    def updates_per_learning_iteration(cls, config: Any) -> int:
-        return config.num_epochs * config.num_minibatches
-
-    @classmethod
-    def minibatch_size(cls, config: Any) -> int:
-        return config.steps_per_iteration // config.num_minibatches
-
-    @classmethod
-    def kept_rows(cls, config: Any) -> int:
-        return config.rollout_length
-
-    @classmethod
-    def kept_sizes(cls, config: Any) -> str:
-        return f"rollout_length={config.rollout_length}"
 
     def __init__(self, loop: Any):
         super().__init__(loop)

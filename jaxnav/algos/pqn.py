@@ -12,38 +12,13 @@ import jax.numpy as jnp
 
 from jaxnav.agents import dqn, pqn
 from jaxnav.algos import backend
-from jaxnav.algos.base import Algorithm, LossFn, TrainState, Transitions
+from jaxnav.algos.base import LossFn, RolloutAlgorithm, TrainState, Transitions
 
 
-class PQN(Algorithm):
+class PQN(RolloutAlgorithm):
     """Lambda-returns over rollouts of many envs; keeps nothing beyond the shared state."""
 
     gpu_updates_unroll = 16
-
-    @classmethod
-    def validate(cls, config: Any) -> None:
-        if config.steps_per_iteration % config.num_minibatches:
-            raise ValueError(
-                f"num_minibatches={config.num_minibatches} does not divide the "
-                f"num_envs * rollout_length = {config.steps_per_iteration} transitions of a "
-                "rollout"
-            )
-
-    @classmethod
-    def updates_per_learning_iteration(cls, config: Any) -> int:
-        return config.num_epochs * config.num_minibatches
-
-    @classmethod
-    def minibatch_size(cls, config: Any) -> int:
-        return config.steps_per_iteration // config.num_minibatches
-
-    @classmethod
-    def kept_rows(cls, config: Any) -> int:
-        return config.rollout_length
-
-    @classmethod
-    def kept_sizes(cls, config: Any) -> str:
-        return f"rollout_length={config.rollout_length}"
 
     def minibatch_loss(self, ts: TrainState) -> LossFn:
         """The regression on ``(obs [B, D], action [B], target [B])``, the target a
