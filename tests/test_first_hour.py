@@ -7,6 +7,7 @@ import shutil
 from pathlib import Path
 
 import pytest
+from matplotlib.figure import Figure
 
 from jaxnav import render
 from jaxnav.cli import Parser, UsageError, add_env_args
@@ -65,7 +66,7 @@ def test_a_run_takes_its_sensors_to_another_maze(generalist_run, monkeypatch, ca
     assert kwargs["laser_fov"] == 360.0 and kwargs["obs_absolute"] is False
     drawn = []
     monkeypatch.setattr(
-        render, "trajectories_figure", lambda eps, title: drawn.append(eps) or _Figure()
+        render, "trajectories_figure", lambda eps, title: drawn.append(eps) or empty_figure()
     )
     png = generalist_run.parent / "t.png"
     assert render.main([*argv[:3], "--episodes", "1", "--out", str(png)]) == 0
@@ -83,7 +84,7 @@ def test_a_run_takes_its_sensors_to_another_maze(generalist_run, monkeypatch, ca
 def test_render_draws_the_maze_file_it_is_given(robot_run, monkeypatch, tmp_path):
     drawn = []
     monkeypatch.setattr(
-        render, "trajectories_figure", lambda eps, title: drawn.append(eps) or _Figure()
+        render, "trajectories_figure", lambda eps, title: drawn.append(eps) or empty_figure()
     )
     other = robot_run.parent / "other.txt"
     png = tmp_path / "t.png"
@@ -93,9 +94,9 @@ def test_render_draws_the_maze_file_it_is_given(robot_run, monkeypatch, tmp_path
     assert [float(v) for v in drawn[0][0]["arena"]] == [8.0, 5.0]
 
 
-class _Figure:
-    def savefig(self, path, **kwargs):
-        Path(path).write_bytes(b"png")
+def empty_figure() -> Figure:
+    """An empty real figure for a stubbed drawing: render saves and closes it as its own."""
+    return Figure()
 
 
 def test_readme_does_not_promise_fixed_start_and_goal_cells():
