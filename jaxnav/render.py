@@ -332,19 +332,23 @@ def animation_figure(
 
     rows, cols = _grid_shape(len(episodes))
     fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols, 3.4 * rows + 0.3), squeeze=False)
-    panels = [
-        EpisodeArtists(ax, ep, animated=True)
-        for ax, ep in zip(axes.ravel(), episodes, strict=False)
-    ]
-    for ax in axes.ravel()[len(episodes) :]:
-        ax.axis("off")
-    for p in panels:  # the longest titles, so that the layout leaves room for them
-        p.show(int(p.ep["steps"]))
-    legend(fig, episodes)
-    if title:
-        fig.suptitle(title, fontsize=10)
-    bottom = 0.3 / fig.get_figheight()
-    fig.tight_layout(rect=(0, bottom, 1, 0.94 if title else 1))
+    try:
+        panels = [
+            EpisodeArtists(ax, ep, animated=True)
+            for ax, ep in zip(axes.ravel(), episodes, strict=False)
+        ]
+        for ax in axes.ravel()[len(episodes) :]:
+            ax.axis("off")
+        for p in panels:  # the longest titles, so that the layout leaves room for them
+            p.show(int(p.ep["steps"]))
+        legend(fig, episodes)
+        if title:
+            fig.suptitle(title, fontsize=10)
+        bottom = 0.3 / fig.get_figheight()
+        fig.tight_layout(rect=(0, bottom, 1, 0.94 if title else 1))
+    except BaseException:  # no half-built figure left open in pyplot
+        plt.close(fig)
+        raise
 
     def show(t: int) -> list[Any]:
         return [a for p in panels for a in p.show(t)]
