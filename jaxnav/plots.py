@@ -212,14 +212,15 @@ def trajectories(results: dict[str, Any], arrays: dict[str, np.ndarray]) -> Any:
         for ax in row[len(episodes) :]:
             ax.axis("off")
         row[0].set_ylabel(suite, fontsize=9)
-    axes[0, 0].legend(loc="upper left", fontsize=7, framealpha=0.9)
-    lasers = any(ep["laser_angles"].size for ep in trajectory_episodes(arrays, suites[0]))
+    shown = [ep for suite in suites for ep in trajectory_episodes(arrays, suite)]
+    render.legend(fig, shown)
+    lasers = any(render.is_robot(ep) for ep in shown)
     fig.suptitle(
         "Dueling double DQN (first seed, greedy) on test episodes: path, start, goal"
-        + (", laser rays at 4 steps" if lasers else ""),
+        + (", laser rays at the last pose" if lasers else ""),
         fontsize=11,
     )
-    fig.tight_layout(rect=(0, 0, 1, 1 - 0.06 / len(suites)))
+    fig.tight_layout(rect=(0, 0.05 / len(suites), 1, 1 - 0.06 / len(suites)))
     return fig
 
 
