@@ -69,7 +69,8 @@ def play(
 
     Outcomes: ``return``, ``steps``, ``success``, ``collision``, ``timeout``, ``layout`` (the
     bank layout), ``shortest_path`` (``env.shortest_path_length`` at the start, -1 where not
-    known) and ``path_length`` (the sum of ``env.step_length`` over the episode).
+    known; on the robot envs computed on the host) and ``path_length`` (the sum of
+    ``env.step_length`` over the episode).
 
     Steps without auto-reset (``env.step_no_reset``, the time limit of ``env.step``): an ended
     episode's state stays as it ended, so ``record=True`` also returns ``"states"``, the
