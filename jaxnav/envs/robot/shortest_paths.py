@@ -19,7 +19,6 @@ between them enters no grown wall). Corner-to-corner distances are kept per maze
 from __future__ import annotations
 
 import functools
-import math
 
 import numpy as np
 
@@ -150,16 +149,16 @@ class MazeGraph:
             out = np.minimum(out, np.where(seen, far, np.inf).min(axis=1))
         return out
 
-    def distance(self, start: np.ndarray, goal: np.ndarray, radius: float) -> float:
-        """Cells from ``start`` to the closed disc of ``radius`` around ``goal`` through free
-        space (inf where there is no path)."""
-        key = (float(goal[0]), float(goal[1]))
-        best = float(self.straight_to_disc(np.asarray(start)[None], np.asarray(goal), radius)[0])
+    def distances(self, starts: np.ndarray, goal: np.ndarray, radius: float) -> np.ndarray:
+        """float64[P]: cells from each of ``starts[P, 2]`` to the closed disc of ``radius``
+        around ``goal`` through free space (inf where there is no path)."""
+        best = self.straight_to_disc(starts, goal, radius)
         if len(self.corners):
-            seen = visible(np.asarray(start)[None], self.corners, self.lo, self.hi)
-            to = np.linalg.norm(self.corners - start, axis=-1)
-            via = np.where(seen, to + self.to_disc(key, radius), np.inf)
-            best = min(best, float(via.min()))
+            seen = visible(starts[:, None], self.corners[None], self.lo, self.hi)
+            to = np.linalg.norm(self.corners[None] - starts[:, None], axis=-1)
+            rest = self.to_disc((float(goal[0]), float(goal[1])), radius)
+            via = np.where(seen, to + rest, np.inf)
+            best = np.minimum(best, via.min(axis=1))
         return best
 
 
@@ -168,17 +167,26 @@ def maze_graph(grid_bytes: bytes, rows: int, cols: int) -> MazeGraph:
     return MazeGraph(np.frombuffer(grid_bytes, bool).reshape(rows, cols))
 
 
+def disc_distances(
+    grid: np.ndarray, cell_size: float, starts: np.ndarray, goal: np.ndarray, goal_radius: float
+) -> np.ndarray:
+    """float64[P]: metres of the shortest path of a point from each of ``starts[P, 2]`` (x, y
+    metres) to the closed disc of ``goal_radius`` around ``goal`` through the free cells of
+    ``grid`` (bool[rows, cols], True = wall, row 0 at the top), walls grown by ``EPSILON``
+    cells; inf where there is none."""
+    grid = np.ascontiguousarray(grid, bool)
+    graph = maze_graph(grid.tobytes(), *grid.shape)
+    s = np.asarray(starts, np.float64).reshape(-1, 2) / cell_size
+    g = np.asarray(goal, np.float64)[:2] / cell_size
+    return graph.distances(s, g, float(goal_radius) / cell_size) * cell_size
+
+
 def disc_distance(
     grid: np.ndarray, cell_size: float, start: np.ndarray, goal: np.ndarray, goal_radius: float
 ) -> float:
-    """Metres of the shortest path of a point from ``start`` (x, y metres) to the closed disc
-    of ``goal_radius`` around ``goal`` through the free cells of ``grid`` (bool[rows, cols],
-    True = wall, row 0 at the top), walls grown by ``EPSILON`` cells; inf where none."""
-    grid = np.ascontiguousarray(grid, bool)
-    graph = maze_graph(grid.tobytes(), *grid.shape)
-    s = np.asarray(start, np.float64)[:2] / cell_size
-    g = np.asarray(goal, np.float64)[:2] / cell_size
-    return graph.distance(s, g, float(goal_radius) / cell_size) * cell_size
+    """``disc_distances`` of one start (x, y metres)."""
+    start = np.asarray(start, np.float64)[:2]
+    return float(disc_distances(grid, cell_size, start[None], goal, goal_radius)[0])
 
 
 def shortest_path_lengths(
@@ -189,7 +197,7 @@ def shortest_path_lengths(
     goal_radius: np.ndarray,
     cell_size: float,
 ) -> np.ndarray:
-    """float32[...]: ``disc_distance`` of each episode (``grids`` bool[B, rows, cols], a bank;
+    """float32[...]: ``disc_distances`` of each episode (``grids`` bool[B, rows, cols], a bank;
     ``layout``, ``start[..., 2]``, ``goal[..., 2]`` and ``goal_radius`` broadcast over the
     leading axes), -1 where there is no path or it is not positive (the start in the disc).
     ``grids`` may carry leading axes of size 1 (a host callback's unbatched argument)."""
@@ -203,8 +211,13 @@ def shortest_path_lengths(
     start = np.broadcast_to(start, shape + (2,)).reshape(-1, 2)
     goal = np.broadcast_to(goal, shape + (2,)).reshape(-1, 2)
     radius = np.broadcast_to(radius, shape).ravel()
-    out = np.empty(len(layout), np.float32)
-    for i in range(len(layout)):
-        d = disc_distance(grids[layout[i]], cell_size, start[i], goal[i], radius[i])
-        out[i] = d if math.isfinite(d) and d > 0 else -1.0
-    return out.reshape(shape)
+    out = np.empty(len(layout), np.float64)
+    # the episodes of one maze and goal at once: a bank's resets share a few goals per maze
+    task = np.stack([layout, goal[:, 0], goal[:, 1], radius], axis=1)
+    _, group = np.unique(task, axis=0, return_inverse=True)
+    for g in np.unique(group):
+        idx = np.flatnonzero(group.ravel() == g)
+        i = idx[0]
+        out[idx] = disc_distances(grids[layout[i]], cell_size, start[idx], goal[i], radius[i])
+    good = np.isfinite(out) & (out > 0)
+    return np.where(good, out, -1.0).astype(np.float32).reshape(shape)
