@@ -129,7 +129,7 @@ class MazeGraph:
         # dense input: infinite entries are missing edges
         self.between = shortest_path(direct, method="D", directed=False) if len(c) else direct
 
-    @functools.lru_cache(maxsize=256)  # noqa: B019 - one graph per maze, goals repeat
+    @functools.lru_cache(maxsize=2**16)  # noqa: B019 - a bank of 2048 mazes x 32 goals
     def to_disc(self, goal: tuple[float, float], radius: float) -> np.ndarray:
         """float64[N]: each corner's distance (cells) to the closed disc through free space."""
         return (self.between + self.straight_to_disc(self.corners, np.array(goal), radius)).min(1)
