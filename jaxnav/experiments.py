@@ -73,6 +73,7 @@ METRICS = (
     "mean_steps",
     "mean_episode_length",
     "mean_path_ratio",
+    "spl",
 )
 
 
@@ -367,14 +368,16 @@ def results_markdown(results: dict[str, Any]) -> str:
     n_seeds = len(results["seeds"])
     head = (
         "| suite | agent | success | collision | timeout | mean return | mean steps "
-        "(successes) | mean episode length | path ratio |\n" + "|---" * 9 + "|\n"
+        "(successes) | mean episode length | path ratio | SPL |\n" + "|---" * 10 + "|\n"
     )
     lines = [
         f"# {results['experiment']}\n",
         f"Mean ± 95% t-interval over {n_seeds} seeds (random agent: {n_seeds} policy keys); "
         "each agent meets the same fixed test episodes of a suite. Mean steps and path ratio "
         "(path travelled / shortest path: grid steps / BFS moves, robot metres / "
-        "geodesic metres less the goal radius) are over successful episodes.\n\n",
+        "any-angle metres to the goal disc) are over successful episodes; SPL (success "
+        "weighted by path length: the mean of success x shortest / max(travelled, shortest)) "
+        "over the episodes whose shortest path is known.\n\n",
         head,
     ]
     for suite_name, suite in results["suites"].items():
@@ -421,6 +424,7 @@ GENERALIZATION_METRICS = (
     "timeout_rate",
     "worst10_success",
     "mean_path_ratio",
+    "spl",
 )
 
 
@@ -547,15 +551,16 @@ def generalization_markdown(results: dict[str, Any]) -> str:
         "seed, round-robin over the family's mazes. Success, collision, timeout, worst-10% "
         "success (the mean success of the ceil(10%) of mazes with the lowest success) and path "
         "ratio (path travelled / shortest path, successful episodes; n/a where no shortest "
-        "path is known) are means over seeds; IQM of the per-seed success with a 95% "
+        "path is known) and SPL (success weighted by path length, over the episodes whose "
+        "shortest path is known) are means over seeds; IQM of the per-seed success with a 95% "
         "percentile bootstrap interval over seeds.\n\n",
         "| family | seeds | mazes | success | collision | timeout | worst-10% success | "
-        "success IQM [95% CI] | path ratio |\n",
-        "|---" * 9 + "|\n",
+        "success IQM [95% CI] | path ratio | SPL |\n",
+        "|---" * 10 + "|\n",
     ]
     for name, fam in results["families"].items():
         if not fam["seeds"]:
-            lines.append(f"| {name} | 0 | | | | | | | |\n")
+            lines.append(f"| {name} | 0 | | | | | | | | |\n")
             continue
         m = fam["mean"]
         cells = [format_value(m[k]) for k in GENERALIZATION_METRICS[:4]]
@@ -563,7 +568,7 @@ def generalization_markdown(results: dict[str, Any]) -> str:
         lines.append(
             f"| {name} | {fam['seeds']} | {fam['mazes']} | "
             + " | ".join(cells)
-            + f" | {iqm_cell} | {format_value(m['mean_path_ratio'])} |\n"
+            + f" | {iqm_cell} | {format_value(m['mean_path_ratio'])} | {format_value(m['spl'])} |\n"
         )
     notes = [
         f"- {name}: skipped {s}\n" for name, f in results["families"].items() for s in f["skipped"]

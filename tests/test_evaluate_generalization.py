@@ -149,7 +149,7 @@ def test_robot_path_ratio_of_a_straight_run_is_at_least_one(tmp_path):
     forward = lambda key, obs: jnp.zeros(obs.shape[:1], jnp.int32)  # noqa: E731
     out = play(env, params, forward, jax.random.key(1), obs, state, 40)
     assert out["success"].all()
-    np.testing.assert_allclose(out["shortest_path"], [4.5, 2.5])  # geodesic less goal radius
+    np.testing.assert_allclose(out["shortest_path"], [4.5, 2.5])  # to the goal disc
     np.testing.assert_allclose(out["path_length"], 0.25 * np.asarray(out["steps"]), rtol=1e-5)
     ratio = summarize(out)["mean_path_ratio"]
     assert ratio is not None and 1.0 <= ratio < 1.2

@@ -69,7 +69,8 @@ def play(
 
     Outcomes: ``return``, ``steps``, ``success``, ``collision``, ``timeout``, ``layout`` (the
     bank layout), ``shortest_path`` (``env.shortest_path_length`` at the start, -1 where not
-    known) and ``path_length`` (the sum of ``env.step_length`` over the episode).
+    known; on the robot envs computed on the host) and ``path_length`` (the sum of
+    ``env.step_length`` over the episode).
 
     Steps without auto-reset (``env.step_no_reset``, the time limit of ``env.step``): an ended
     episode's state stays as it ended, so ``record=True`` also returns ``"states"``, the
@@ -151,12 +152,28 @@ def worst_fraction_mean(per_maze: np.ndarray, fraction: float = 0.1) -> float:
     return float(x[: math.ceil(fraction * len(x))].mean())
 
 
+def spl(success: np.ndarray, shortest: np.ndarray, travelled: np.ndarray) -> float | None:
+    """Success weighted by path length (Anderson et al. 2018, as Habitat reports it): the mean
+    over episodes of S_i l_i / max(p_i, l_i), S_i success (0 or 1), l_i the shortest path, p_i
+    the path travelled; over the episodes whose shortest path is known (l_i > 0), None where
+    none is."""
+    success, shortest = np.asarray(success, bool), np.asarray(shortest, float)
+    travelled = np.asarray(travelled, float)
+    known = shortest > 0
+    if not known.any():
+        return None
+    best, p = shortest[known], travelled[known]
+    return float(np.mean(np.where(success[known], best / np.maximum(p, best), 0.0)))
+
+
 def summarize(episodes: dict[str, jax.Array]) -> dict[str, float | None]:
     """Rates over all episodes; steps and path ratio over successful ones.
 
     ``mean_path_ratio``: path length travelled / shortest path length at the start
     (``env.step_length``, ``env.shortest_path_length``) over successful episodes whose shortest
     path is known; None where there are none (never 0 for something not measured).
+    ``spl``: success weighted by path length (``spl``) over the episodes whose shortest path
+    is known, None where none is.
     ``worst10_success``: ``worst_fraction_mean`` of the per-maze success rates
     (``maze_success``), None where a maze was played fewer than ``MIN_EPISODES_PER_MAZE``
     times (with one episode a maze's rate is 0 or 1 and the worst 10% is 0 by construction);
@@ -182,6 +199,7 @@ def summarize(episodes: dict[str, jax.Array]) -> dict[str, float | None]:
         "mean_path_ratio": (
             float((travelled[has_path] / shortest[has_path]).mean()) if has_path.any() else None
         ),
+        "spl": spl(success, shortest, travelled),
         "mazes": float(len(played)),
         "worst10_success": (
             worst_fraction_mean(per_maze, 0.1) if played.min() >= MIN_EPISODES_PER_MAZE else None
@@ -312,6 +330,7 @@ EVAL_COLUMNS = (
     "mean_return",
     "mean_steps",
     "mean_path_ratio",
+    "spl",
 )
 
 

@@ -90,6 +90,7 @@ the MJX substep check use the fastest possible step (``RobotConfig.max_speed``).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import os
 from typing import Any, ClassVar
@@ -107,7 +108,14 @@ from jaxnav.envs.maze_algorithms import (
     first_blocked_cell,
     narrowest_gap,
 )
-from jaxnav.envs.robot import generators, geometry, jaxnav_levels, mazes, occupancy
+from jaxnav.envs.robot import (
+    generators,
+    geometry,
+    jaxnav_levels,
+    mazes,
+    occupancy,
+    shortest_paths,
+)
 
 ACTION_NAMES = ("forward", "backward", "turn_left", "turn_right")
 MAZES = ("simple", "complex", "random", "file", "families", "jaxnav")
@@ -852,14 +860,24 @@ class RobotNav(Environment[RobotState, RobotParams]):
         return state.layout
 
     def shortest_path_length(self, state: RobotState, params: RobotParams) -> jax.Array:
-        """Metres from the robot to where the episode can succeed: the geodesic distance
-        (``goal_distance``, 4-neighbour steps through free cells) less ``goal_radius``, since
-        the episode ends as soon as the robot is that close; -1 where unknown (or not
-        positive). Along a straight corridor this is the least travel a success needs; a robot
-        that cuts a corner diagonally may travel less (path ratio below 1)."""
-        d = self.goal_distance(state.pose, state.goal, state.layout, params)
-        shortest = d - params.goal_radius
-        return jnp.where((d >= 0) & (shortest > 0), shortest, -1.0)
+        """Metres from the robot to where the episode can succeed: the any-angle shortest path
+        of its centre through the maze's free cells to the goal disc (``goal_radius``), on the
+        host (``shortest_paths``); -1 where there is none (or it is not positive). No episode
+        without a collision reaches the disc on a shorter path, so a path ratio is at least 1."""
+        bank = params.bank
+        callback = functools.partial(shortest_paths.shortest_path_lengths, cell_size=bank.cell_size)
+        out = jax.ShapeDtypeStruct(state.layout.shape, jnp.float32)
+        # unbatched arguments (the bank) get leading axes of size 1 under vmap, not copies
+        return jax.pure_callback(
+            callback,
+            out,
+            bank.grid,
+            state.layout,
+            state.pose[..., :2],
+            state.goal,
+            jnp.asarray(params.goal_radius, jnp.float32),
+            vmap_method="expand_dims",
+        )
 
     def step_length(
         self, state: RobotState, next_state: RobotState, params: RobotParams
