@@ -68,6 +68,7 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 import optax
+import scipy.stats
 
 from jaxnav.config import TrainConfig
 from jaxnav.evaluate import iqm, run_episodes, summarize
@@ -497,11 +498,9 @@ def _final_pairs(runs: list[dict[str, Any]]) -> list[list[float]] | None:
 def standard_error(values: list[float]) -> float | None:
     """The standard error of the mean of ``values`` (one a seed): what another set of seeds
     would move it by; None for fewer than two."""
-    k = len(values)
-    if k < 2:
+    if len(values) < 2:
         return None
-    mean = sum(values) / k
-    return math.sqrt(sum((v - mean) ** 2 for v in values) / (k - 1) / k)
+    return float(scipy.stats.sem(values))
 
 
 def final_difference_stats(runs: list[dict[str, Any]]) -> tuple[float, float, float] | None:

@@ -569,3 +569,18 @@ def test_updates_unrolled_two_a_trip_train_exactly_as_rolled(monkeypatch, update
         else:
             np.testing.assert_array_equal(a, b)  # counts, actions, episodes, keys
     assert float(runs[1][1]["loss"][-1]) > 0.0
+
+
+def test_polyak_is_optax_incremental_update_and_tau_one_copies():
+    """The target network's update (``optax.incremental_update``) computes the hand-written
+    ``tau * params + (1 - tau) * target`` bit for bit; tau 1 is a hard copy."""
+    from jaxnav.agents.dqn import polyak
+
+    key_a, key_b = jax.random.split(jax.random.key(3))
+    params = {"w": jax.random.normal(key_a, (7, 5)), "b": jnp.arange(5.0)}
+    target = {"w": jax.random.normal(key_b, (7, 5)), "b": -jnp.arange(5.0)}
+    for tau in (1.0, 0.5, 0.005):
+        tau = jnp.float32(tau)
+        hand = jax.tree.map(lambda t, p, k=tau: k * p + (1.0 - k) * t, target, params)
+        chex.assert_trees_all_equal(polyak(target, params, tau), hand)
+    chex.assert_trees_all_equal(polyak(target, params, jnp.float32(1.0)), params)

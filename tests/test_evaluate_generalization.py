@@ -263,3 +263,23 @@ def test_generalization_writes_a_table_per_family(robot_run, tmp_path, capsys):
     assert (out / gifs[0]).read_bytes()[:6] == b"GIF89a"
     line = next(x for x in printed.splitlines() if "trajectories-rooms.gif" in x)
     assert line.count(";") == 1  # two episodes described
+
+
+def test_the_statistics_over_seeds_are_scipys_and_match_the_hand_formulas():
+    """iqm is ``scipy.stats.trim_mean(x, 0.25)`` and the comparisons' standard error
+    ``scipy.stats.sem``: both equal the formulas they replaced."""
+    import math
+
+    from benchmarks.train_vs_rejax import standard_error
+
+    rng = np.random.default_rng(0)
+    for n in (1, 2, 3, 4, 5, 8, 11):
+        x = rng.random(n)
+        s = np.sort(x)
+        assert iqm(x) == pytest.approx(float(s[n // 4 : n - n // 4].mean()), abs=1e-15)
+        if n < 2:
+            assert standard_error(list(x)) is None
+            continue
+        mean = sum(x) / n
+        hand = math.sqrt(sum((v - mean) ** 2 for v in x) / (n - 1) / n)
+        assert standard_error(list(x)) == pytest.approx(hand, rel=1e-12)

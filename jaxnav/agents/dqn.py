@@ -14,6 +14,7 @@ from typing import Any
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
+import optax
 from flax import struct
 from jax.sharding import Mesh
 
@@ -363,4 +364,4 @@ def td_loss(
 
 def polyak(target_params: Any, params: Any, tau: jax.Array) -> Any:
     """``tau * params + (1 - tau) * target``; tau = 1 is a hard copy."""
-    return jax.tree.map(lambda t, p: tau * p + (1.0 - tau) * t, target_params, params)
+    return optax.incremental_update(params, target_params, tau)
