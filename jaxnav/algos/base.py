@@ -198,3 +198,29 @@ class RolloutAlgorithm(Algorithm):
     @classmethod
     def kept_sizes(cls, config: Any) -> str:
         return f"rollout_length={config.rollout_length}"
+
+    def rollout_epsilon(self, ts: TrainState, env_steps: jax.Array) -> jax.Array:
+        """The epsilon a rollout acts with (``Loop.epsilon``, PQN's epsilon-greedy)."""
+        return self.loop.epsilon(ts.hparams, env_steps)
+
+    def iteration(
+        self, ts: TrainState, env_steps: jax.Array
+    ) -> tuple[TrainState, jax.Array, dict, dict]:
+        """A rollout of every env (``choose_actions`` with ``rollout_epsilon``), then
+        ``learn``."""
+        c, loop = self.config, self.loop
+        key, k_roll, k_learn = jax.random.split(ts.key, 3)
+        eps = self.rollout_epsilon(ts, env_steps)
+        # the parameters do not change within a rollout: cast once for its acting passes
+        acting = loop.network.compute_params(ts.params)
+        ts, (tr, finite, stats) = jax.lax.scan(
+            lambda ts, k: loop.env_step(ts, tuple(jax.random.split(k, 3)), eps, acting),
+            ts,
+            jax.random.split(k_roll, c.rollout_length),
+        )
+        ts, aux = self.learn(ts.replace(key=key), tr, k_learn)
+        return ts, finite, stats, aux
+
+    def learn(self, ts: TrainState, tr: Transitions, key: jax.Array) -> tuple[TrainState, dict]:
+        """Learn from the rollout ``tr`` (laid out [time, env]) with ``key``."""
+        raise NotImplementedError

@@ -159,22 +159,9 @@ class PPO(RolloutAlgorithm):
         flat = obs.reshape(-1, obs.shape[-1])
         return self.learner_critic.apply(critic_params, flat)[:, 0].reshape(obs.shape[:-1])
 
-    def iteration(
-        self, ts: TrainState, env_steps: jax.Array
-    ) -> tuple[TrainState, jax.Array, dict, dict]:
-        """A rollout of every env, sampling the policy, then ``learn``."""
-        c, loop = self.config, self.loop
-        key, k_roll, k_learn = jax.random.split(ts.key, 3)
-        eps = jnp.zeros(())
-        # the parameters do not change within a rollout: cast once for its acting passes
-        acting = loop.network.compute_params(ts.params)
-        ts, (tr, finite, stats) = jax.lax.scan(
-            lambda ts, k: loop.env_step(ts, tuple(jax.random.split(k, 3)), eps, acting),
-            ts,
-            jax.random.split(k_roll, c.rollout_length),
-        )
-        ts, aux = self.learn(ts.replace(key=key), tr, k_learn)
-        return ts, finite, stats, aux
+    def rollout_epsilon(self, ts: TrainState, env_steps: jax.Array) -> jax.Array:
+        """Zero: PPO samples its policy (``choose_actions``), which reads no epsilon."""
+        return jnp.zeros(())
 
     def learn(self, ts: TrainState, tr: Transitions, key: jax.Array) -> tuple[TrainState, dict]:
         """GAE over the rollout, then ``num_epochs`` shuffled passes of ``num_minibatches``

@@ -31,23 +31,6 @@ class PQN(RolloutAlgorithm):
 
         return loss_fn
 
-    def iteration(
-        self, ts: TrainState, env_steps: jax.Array
-    ) -> tuple[TrainState, jax.Array, dict, dict]:
-        """A rollout of every env, epsilon-greedy, then ``learn``."""
-        c, loop = self.config, self.loop
-        key, k_roll, k_learn = jax.random.split(ts.key, 3)
-        eps = loop.epsilon(ts.hparams, env_steps)
-        # the parameters do not change within a rollout: cast once for its acting passes
-        acting = loop.network.compute_params(ts.params)
-        ts, (tr, q_finite, stats) = jax.lax.scan(
-            lambda ts, k: loop.env_step(ts, tuple(jax.random.split(k, 3)), eps, acting),
-            ts,
-            jax.random.split(k_roll, c.rollout_length),
-        )
-        ts, aux = self.learn(ts.replace(key=key), tr, k_learn)
-        return ts, q_finite, stats, aux
-
     def next_values(self, params: Any, tr: Transitions, last_obs: jax.Array) -> jax.Array:
         """``max_a Q(s', a)`` for every step of rollout ``tr`` [T, N], the observation after
         the step (``last_obs`` after the last one; the final observation where an episode
