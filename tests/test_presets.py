@@ -196,5 +196,6 @@ def test_help_shows_each_default_once_the_named_presets():
     assert f"steps per seed (default: {GENERALIST_PQN['total_timesteps']})" in text
     assert f"(default: {GENERALIST_PQN['num_envs']})" in text and "; robot envs" not in text
     # a bad id in argv leaves the grid's defaults; parsing the flags then names it
-    bad = train_parser(["--env", "x"]).format_help()
-    assert "Defaults shown: GridMaze-v0" in " ".join(bad.split())
+    for argv in (["--env", "x"], ["--env", "--"], ["--algo"]):
+        bad = train_parser(argv).format_help()
+        assert "Defaults shown: GridMaze-v0" in " ".join(bad.split())

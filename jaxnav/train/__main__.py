@@ -128,14 +128,14 @@ def preset_defaults(argv: Sequence[str] | None) -> TrainConfig:
     """The defaults ``--help`` shows: the preset of the ``--env`` and ``--algo`` in ``argv``
     (``TrainConfig.for_env``), the paper's grid DQN without them or where they are not valid
     (parsing the real flags then names the bad one)."""
-    pre = argparse.ArgumentParser(add_help=False)
+    pre = argparse.ArgumentParser(add_help=False, exit_on_error=False)
     pre.add_argument("--env", default="GridMaze-v0")
     pre.add_argument("--algo")
-    known, _ = pre.parse_known_args(list(sys.argv[1:] if argv is None else argv))
-    algo = {} if known.algo is None else {"algo": known.algo}
     try:
+        known, _ = pre.parse_known_args(list(sys.argv[1:] if argv is None else argv))
+        algo = {} if known.algo is None else {"algo": known.algo}
         return TrainConfig.for_env(known.env, **algo)
-    except (ValueError, TypeError):
+    except (argparse.ArgumentError, SystemExit, ValueError, TypeError):
         return TrainConfig()
 
 
