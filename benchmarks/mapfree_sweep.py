@@ -3,7 +3,7 @@ each trained once and tested greedily on held-out mazes (each family apart), the
 the maze files and, where the env exists, JaxNav-style levels at JaxNav's robot size.
 
     python -m benchmarks.mapfree_sweep [--rows 0,1] [--episodes 2000] \
-        [--out benchmarks/results/mapfree_sweep.jsonl]
+        [--out benchmarks/results/mapfree_sweep.jsonl] [--policies DIR]
 
 Every row is ``TrainConfig.for_env(env, algo="pqn")`` with the row's env and training
 overrides, seed 0 (``jax.random.split(key(0), 1)``), ``eval_episodes`` 0. "Map-free" means
@@ -26,6 +26,7 @@ import numpy as np
 import jaxnav
 from benchmarks.common import machine_info
 from benchmarks.generalist_sweep import train_one
+from jaxnav import export
 from jaxnav.config import TrainConfig
 from jaxnav.envs.robot import generators
 from jaxnav.evaluate import run_episodes
@@ -42,6 +43,14 @@ ODOMETRY = {**MAPFREE, "goal_range": 16.0, "obs_last_action": True}
 JAXNAV_ROBOT = {"radius": 0.25, "radius_range": None, "goal_radius": 0.3, "max_steps": 500}
 # the robot's size drawn per episode, and given to the policy
 SIZES = {"radius_range": (0.1, 0.25), "obs_radius": True}
+# every family plus JaxNav's levels in one bank, robots up to what a 0.5 m cell holds
+MIXED = {
+    "families": (*generators.FAMILIES, "jaxnav"),
+    "radius_range": (0.1, 0.24),
+    "obs_radius": True,
+}
+# radii the held-out mazes are tested at when a row draws the robot's size
+HELD_OUT_RADII = (0.1, 0.15, 0.2)
 
 # (label, env id, env overrides, training overrides)
 ROWS: list[tuple[str, str, dict[str, Any], dict[str, Any]]] = [
@@ -50,6 +59,13 @@ ROWS: list[tuple[str, str, dict[str, Any], dict[str, Any]]] = [
     ("row 1 + 8 frames", "RobotNav-v0", {**ODOMETRY, "frames": 8}, {}),
     ("row 1, 2x env steps", "RobotNav-v0", ODOMETRY, {"total_timesteps": 1_677_721_600}),
     ("row 1 on JaxNav levels, radius 0.1-0.25 m", "RobotJaxNav-v0", {**ODOMETRY, **SIZES}, NAV),
+    ("waypoint on, families + JaxNav levels, radius 0.1-0.24 m", "RobotNav-v0", MIXED, {}),
+    (
+        "row 2 on families + JaxNav levels, radius 0.1-0.24 m, 2x env steps",
+        "RobotNav-v0",
+        {**ODOMETRY, "frames": 8, **MIXED},
+        {"total_timesteps": 1_677_721_600},
+    ),
 ]
 
 
@@ -61,6 +77,10 @@ def families(config: TrainConfig) -> list[Family]:
     fixed = {"radius": 0.15, "radius_range": None}
     others = [Family(f.name, f.env, {**f.env_kwargs, **fixed}) for f in default_families(config)]
     out = [held_out, *others[1:]]
+    if config.env_kwargs.get("radius_range") and config.env == "RobotNav-v0":
+        for radius in HELD_OUT_RADII:  # capped per maze at what passes its narrowest gap
+            kwargs = {**held_out.env_kwargs, "radius_range": (radius, radius)}
+            out.append(Family(f"held-out, r {radius:g}", "own", kwargs))
     if "RobotJaxNav-v0" in registered_envs():
         levels = {"maze_seed": HELD_OUT_MAZE_SEED, "num_layouts": 1000, **JAXNAV_ROBOT}
         for radius in (0.1, 0.15, 0.2, 0.25):
@@ -77,7 +97,7 @@ def outcome(out: dict[str, Any], mask: np.ndarray | None = None) -> dict[str, fl
     }
 
 
-def run_row(index: int, episodes: int) -> dict[str, Any]:
+def run_row(index: int, episodes: int, policies: Path | None = None) -> dict[str, Any]:
     label, env_id, env_kwargs, overrides = ROWS[index]
     config = TrainConfig.for_env(
         env_id, algo="pqn", env_kwargs=env_kwargs, eval_episodes=0, **overrides
@@ -93,6 +113,10 @@ def run_row(index: int, episodes: int) -> dict[str, Any]:
         "episodes": episodes,
         "tests": {},
     }
+    if policies is not None:  # the row's policy as an exported npz (jaxnav.deploy, pretrained)
+        metadata = export.policy_metadata(trainer, {"benchmark": f"mapfree_sweep row {index}"})
+        arrays = export.policy_arrays(trainer.network, state.params)
+        export.write_policy(arrays, metadata, policies / f"row{index}.npz", "npz")
     policy = trainer.greedy_policy(state.params)
     for family in families(config):
         env_name, kwargs = family.for_run(config)
@@ -138,6 +162,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--rows", default=",".join(map(str, range(len(ROWS)))))
     p.add_argument("--episodes", type=int, default=2000)
     p.add_argument("--out", type=Path, default=Path("benchmarks/results/mapfree_sweep.jsonl"))
+    p.add_argument("--policies", type=Path, help="folder to write each row's policy (rowN.npz)")
     p.add_argument("--render", action="store_true", help="only rebuild the table from --out")
     args = p.parse_args(argv)
     if args.render:
@@ -155,7 +180,7 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     for i in indices:
         print(f"row {i}: {ROWS[i][0]}", flush=True)
-        row = run_row(i, args.episodes) | {"machine": machine}
+        row = run_row(i, args.episodes, args.policies) | {"machine": machine}
         rows.append(row)
         args.out.parent.mkdir(parents=True, exist_ok=True)
         with args.out.open("a") as f:
