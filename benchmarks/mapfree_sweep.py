@@ -66,6 +66,13 @@ ROWS: list[tuple[str, str, dict[str, Any], dict[str, Any]]] = [
         {**ODOMETRY, "frames": 8, **MIXED},
         {"total_timesteps": 1_677_721_600},
     ),
+    (
+        "row 2, exploration to 1% (eps_end 0.01)",
+        "RobotNav-v0",
+        {**ODOMETRY, "frames": 8},
+        {"eps_end": 0.01},
+    ),
+    ("row 2, 64 lasers", "RobotNav-v0", {**ODOMETRY, "frames": 8, "num_lasers": 64}, {}),
 ]
 
 
