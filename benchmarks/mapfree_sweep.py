@@ -143,8 +143,8 @@ def run_row(index: int, episodes: int, policies: Path | None = None) -> dict[str
 
 def markdown(rows: list[dict[str, Any]]) -> str:
     names = list(dict.fromkeys(name for r in rows for name in r["tests"]))
-    head = "| row | setting | train s | env steps | " + " | ".join(names) + " |"
-    lines = [head, "|" + "---|" * (4 + len(names))]
+    head = "| row | setting | train s | env steps | episodes | " + " | ".join(names) + " |"
+    lines = [head, "|" + "---|" * (5 + len(names))]
     for r in sorted(rows, key=lambda r: r["row"]):
         tests = r["tests"]
         cells = [
@@ -153,11 +153,12 @@ def markdown(rows: list[dict[str, Any]]) -> str:
         ]
         lines.append(
             f"| {r['row']} | {r['label']} | {r['train_s']:.1f} | {r['env_steps']:,} | "
+            f"{r['episodes']} | "
             + " | ".join(cells)
             + " |"
         )
     return "\n".join(lines) + (
-        f"\n\nCells: greedy success / collision rate over {rows[0]['episodes']} episodes each "
+        "\n\nCells: greedy success / collision rate over a row's episodes per cell "
         f"(test key {TEST_KEY}, mazes round-robin; held-out: maze_seed {HELD_OUT_MAZE_SEED}, "
         f"1,000 mazes, families {', '.join(generators.FAMILIES)} in turn). One training seed "
         "a row.\n"
