@@ -183,6 +183,7 @@ def test_too_many_walls_for_the_slots(tmp_path):
         M.load_maze(path, num_slots=6)
     assert str(e.value).startswith(f"{path}:5:2: too many walls for 6 wall slots")
     assert "7 boxes (4 boundary + 3 internal)" in str(e.value)
+    assert str(e.value).endswith("use num_wall_slots=7")  # the option and the value that fits
     with pytest.raises(M.MazeFileError, match=f"^{path}:3:4: "):
         M.check_slots(m, 5)
     with pytest.raises(M.MazeFileError, match=f"^{path}:3:4: "):

@@ -353,14 +353,15 @@ def check_slots(maze: Maze, num_slots: int) -> None:
                 f"too many walls for {num_slots} wall slots: the {maze.kind} needs "
                 f"{NUM_BOUNDARY + len(boxes)} boxes ({NUM_BOUNDARY} boundary + {len(boxes)} "
                 f"internal) at {maze.cell_size:g} m cells, the first that does not fit at cell "
-                f"(row {r0}, col {c0}); use more num_wall_slots or a larger map_cell_size",
+                f"(row {r0}, col {c0}); use num_wall_slots={NUM_BOUNDARY + len(boxes)} or a "
+                "larger map_cell_size",
             )
         raise MazeFileError(
             maze.name,
             f"too many walls for {num_slots} wall slots: the maze needs {NUM_BOUNDARY + len(boxes)}"
             f" boxes ({NUM_BOUNDARY} boundary + {len(boxes)} internal) and the wall box starting"
             " here is the first that does not fit; merge walls into longer straight runs or use"
-            " more slots",
+            f" num_wall_slots={NUM_BOUNDARY + len(boxes)}",
             maze.line_of(r0),
             c0 + 1,
         )
