@@ -28,6 +28,8 @@ class Transitions:
     terminated: jax.Array
     done: jax.Array
     value: jax.Array  # the largest output of the acting pass (max_a Q(obs, a))
+    # with memory: the hidden state the acting pass read [time, env, memory]; else None
+    memory: Any = None
 
 
 @struct.dataclass
@@ -44,6 +46,9 @@ class TrainState:
     # divergence guard: set once, at the first iteration where a watched quantity is NaN/Inf
     diverged: jax.Array  # int32, see ``jaxnav.train.DIVERGENCE_QUANTITIES``
     diverged_at: jax.Array  # int32, env steps when it was seen (0 if not diverged)
+    # with memory (``TrainConfig.memory``): each env's hidden state [N, memory] for its next
+    # step, zeros where an episode starts; None without (checkpoints keep their layout)
+    memory: Any = None
 
 
 # gradient steps per iteration, at most (a scan of them is compiled into every iteration)
@@ -91,6 +96,8 @@ class Algorithm:
     outputs = "Q-values"
     # how training acts (``choose_actions``), as progress lines name its episodes
     acting = "eps-greedy"
+    # whether it trains a recurrent network (``TrainConfig.memory``)
+    recurrent = False
 
     def __init__(self, loop: Loop):
         self.loop = loop
@@ -172,10 +179,18 @@ class Algorithm:
 class RolloutAlgorithm(Algorithm):
     """An algorithm that learns from each rollout of ``num_envs x rollout_length`` steps in
     ``num_epochs`` passes of ``num_minibatches`` gradient steps (PQN, PPO): their sizes and
-    check, written once."""
+    check, written once. With ``memory`` a minibatch is the whole rollouts of some envs."""
+
+    recurrent = True
 
     @classmethod
     def validate(cls, config: Any) -> None:
+        if config.memory and config.num_envs % config.num_minibatches:
+            raise ValueError(
+                f"num_minibatches={config.num_minibatches} does not divide num_envs="
+                f"{config.num_envs}: with memory={config.memory} a minibatch is whole "
+                "sequences of envs"
+            )
         if config.steps_per_iteration % config.num_minibatches:
             raise ValueError(
                 f"num_minibatches={config.num_minibatches} does not divide the "

@@ -126,6 +126,7 @@ class PPO(RolloutAlgorithm):
     gpu_updates_unroll = 16
     outputs = "the policy's logits"
     acting = "sampled"
+    recurrent = False
 
     def __init__(self, loop: Any):
         super().__init__(loop)
