@@ -11,9 +11,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from conftest import TINY_TRAIN
+from conftest import TINY_TRAIN, assert_learned_the_maze
 
 from jaxnav.agents import dqn
+from jaxnav.config import TrainConfig
 from jaxnav.evaluate import evaluate_seeds, run_episodes
 from jaxnav.train import Trainer
 
@@ -164,3 +165,24 @@ def test_bad_memory_settings_are_refused_naming_the_value(overrides, named):
     with pytest.raises(ValueError, match=named) as error:
         dataclasses.replace(TINY_TRAIN, **overrides).validate()
     assert "\n" not in str(error.value)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("algo", ["pqn", "ppo"])
+def test_a_recurrent_network_learns_a_small_maze(algo):
+    """The bar of test_pqn.py's and test_ppo.py's feed-forward networks, with a GRU of 32
+    units: a 7x7 maze, greedy success >= 0.9 on near-shortest paths."""
+    config = TrainConfig.for_env(
+        "GridMaze-v0",
+        algo=algo,
+        env_kwargs={"size": 7, "max_steps": 30},
+        hidden_sizes=(64, 64),
+        total_timesteps=65_536,
+        eps_decay_steps=32_000,
+        log_interval=16_384,
+        memory=32,
+    )
+    trainer = Trainer(config)
+    key = jax.random.split(jax.random.key(0), 3)[0]
+    state, metrics = jax.jit(trainer.train)(key)
+    assert_learned_the_maze(trainer, state.params, metrics, 0.9)

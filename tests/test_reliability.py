@@ -34,9 +34,15 @@ TINY = [
 
 # the algorithms' own flags on top of TINY: PQN steps each of the 4 envs twice per iteration
 # and takes 2 minibatches of 4 transitions (2 epochs, its preset) from every rollout; with a
-# GRU of 8 units ("pqn-memory") the minibatches are 2 envs' sequences
+# GRU of 8 units ("-memory") the minibatches are 2 envs' sequences, for PPO too
 PQN_FLAGS = ["--algo", "pqn", "--rollout-length", "2", "--num-minibatches", "2"]
-ALGO_FLAGS = {"dqn": [], "pqn": PQN_FLAGS, "pqn-memory": [*PQN_FLAGS, "--memory", "8"]}
+PPO_MEMORY = ["--algo", "ppo", "--rollout-length", "2", "--num-minibatches", "2", "--memory", "8"]
+ALGO_FLAGS = {
+    "dqn": [],
+    "pqn": PQN_FLAGS,
+    "pqn-memory": [*PQN_FLAGS, "--memory", "8"],
+    "ppo-memory": PPO_MEMORY,
+}
 
 
 @pytest.fixture(scope="module")

@@ -222,6 +222,17 @@ def unroll(
     return jax.lax.scan(step, hidden, (obs, done))[1]
 
 
+def sequence_outputs(
+    apply_fn: Any, params: Any, obs: jax.Array, hidden: jax.Array, done: jax.Array
+) -> jax.Array:
+    """``unroll`` over a minibatch of sequences laid out [env, time] (``obs`` [B, T, D],
+    ``hidden`` [B, H] their state at the start, ``done`` [B, T]): the outputs as rows
+    [B * T, A] in that order, env by env."""
+    swap = lambda x: jnp.swapaxes(x, 0, 1)  # noqa: E731
+    out = unroll(apply_fn, params, swap(obs), hidden, swap(done))[0]
+    return swap(out).reshape(-1, out.shape[-1])
+
+
 # ---------------------------------------------------------------------------- replay
 @struct.dataclass
 class ReplayBuffer:

@@ -16,6 +16,8 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from jaxnav.sharding import mesh_shape
+
 
 @struct.dataclass
 class Transitions:
@@ -190,6 +192,14 @@ class RolloutAlgorithm(Algorithm):
                 f"num_minibatches={config.num_minibatches} does not divide num_envs="
                 f"{config.num_envs}: with memory={config.memory} a minibatch is whole "
                 "sequences of envs"
+            )
+        shards = mesh_shape(config.num_seeds, config.devices)[1]
+        if config.memory and (config.num_envs // config.num_minibatches) % shards:
+            raise ValueError(
+                f"num_minibatches={config.num_minibatches}: with memory={config.memory} a "
+                f"minibatch's {config.num_envs // config.num_minibatches} envs are not a "
+                f"multiple of the {shards} devices each seed's envs are split over "
+                f"(devices={config.devices}, num_seeds={config.num_seeds})"
             )
         if config.steps_per_iteration % config.num_minibatches:
             raise ValueError(

@@ -41,14 +41,9 @@ class PQN(RolloutAlgorithm):
 
         def sequence_loss(params, batch):
             obs, action, target, done, hidden = batch
-            time_major = lambda x: jnp.swapaxes(x, 0, 1)  # noqa: E731
-
-            def unrolled(params, obs):
-                q = dqn.unroll(apply, params, time_major(obs), hidden, time_major(done))[0]
-                return q.reshape(-1, q.shape[-1])
-
-            flat = lambda x: time_major(x).reshape(-1)  # noqa: E731
-            return dqn.regression_loss(params, unrolled, obs, flat(action), flat(target), c.loss)
+            q = lambda p, o: dqn.sequence_outputs(apply, p, o, hidden, done)  # noqa: E731
+            rows = lambda x: x.reshape(-1)  # noqa: E731
+            return dqn.regression_loss(params, q, obs, rows(action), rows(target), c.loss)
 
         return sequence_loss
 
