@@ -50,6 +50,8 @@ ROWS: list[tuple[str, str, dict[str, Any], dict[str, Any]]] = [
     ("row 1 + 8 frames", "RobotNav-v0", {**ODOMETRY, "frames": 8}, {}),
     ("row 1, 2x env steps", "RobotNav-v0", ODOMETRY, {"total_timesteps": 1_677_721_600}),
     ("row 1 on JaxNav levels, radius 0.1-0.25 m", "RobotJaxNav-v0", {**ODOMETRY, **SIZES}, NAV),
+    # memory beyond frame stacks: a GRU between the MLP and the heads (--memory)
+    ("row 1 + GRU 128", "RobotNav-v0", ODOMETRY, {"memory": 128}),
 ]
 
 

@@ -633,7 +633,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(
         f"wrote {path} ({size / 1024:,.0f} KiB): {metadata['env_id']}, "
         f"{net['obs_size']} inputs -> {'-'.join(map(str, net['hidden_sizes']))} -> "
-        f"{net['num_actions']} actions ({', '.join(a['name'] for a in metadata['actions'])})"
+        + (f"GRU {net['memory']} -> " if net.get("memory") else "")
+        + f"{net['num_actions']} actions ({', '.join(a['name'] for a in metadata['actions'])})"
     )
     if net["trained_compute_dtype"] != "float32":
         print(

@@ -165,7 +165,7 @@ class Trainer:
         weights += 3 * (c.hidden_sizes[-1] + c.memory + 2) * c.memory  # the GRU cell's
         obs_bytes = self.obs_size * jnp.dtype(self.env.observation_space().dtype).itemsize
         rows = c.algorithm.kept_rows(c)
-        replay = rows * c.num_envs * (2 * obs_bytes + 4 * 4)
+        replay = rows * c.num_envs * (2 * obs_bytes + 4 * 4 + 4 * c.memory)
         # the host keeps every interval's metrics, [seeds, logs] per name (4-byte values),
         # and a copy of them while a checkpoint is written
         metrics = c.num_seeds * c.num_logs * len(METRIC_NAMES) * 4 * 2
