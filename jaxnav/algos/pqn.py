@@ -58,7 +58,8 @@ class PQN(RolloutAlgorithm):
         limit go through the network again (terminated ones do not bootstrap). The time
         limit cuts an env at most once in ``max_steps_in_episode`` steps, so, in a rollout
         no longer than that, at most once: one pass over one row an env. Longer rollouts (or
-        an env cut twice) take one pass over every next observation."""
+        an env cut twice) take one pass over every next observation. With memory every next
+        observation goes through the network, with the state after its step."""
         network = self.loop.learner_network
         if tr.memory is not None:
             # each next observation read with the hidden state after its step (reset only
