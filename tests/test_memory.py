@@ -17,6 +17,7 @@ from jaxnav.agents import dqn
 from jaxnav.config import TrainConfig
 from jaxnav.evaluate import evaluate_seeds, run_episodes
 from jaxnav.train import Trainer
+from jaxnav.train.__main__ import main as train_main
 
 # TINY_TRAIN as PQN with a GRU of 8 units: 4 envs x 4 steps per rollout, episodes of at most 3
 # steps (so every rollout crosses episode boundaries), 2 minibatches of 2 envs' sequences
@@ -186,3 +187,11 @@ def test_a_recurrent_network_learns_a_small_maze(algo):
     key = jax.random.split(jax.random.key(0), 3)[0]
     state, metrics = jax.jit(trainer.train)(key)
     assert_learned_the_maze(trainer, state.params, metrics, 0.9)
+
+
+def test_cli_refuses_memory_for_the_dqn_in_one_line(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert train_main(["--algo", "dqn", "--memory", "8", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "memory=8" in err and "pqn, ppo" in err
+    assert not out.exists()
