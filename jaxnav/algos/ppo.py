@@ -150,8 +150,8 @@ class PPO(RolloutAlgorithm):
 
     def minibatch_loss(self, ts: TrainState) -> LossFn:
         """The policy's loss (``policy_loss``) on ``(obs, action, old_log_prob, advantage)``;
-        with memory on whole sequences of B envs, each [B, T, ...], and ``(done [B, T],
-        hidden [B, H])``, their state at the sequences' start, after them."""
+        with memory on whole sequences of B envs (each of those [B, T, ...]) followed by
+        ``done [B, T]`` and ``hidden [B, H]``, their state at the sequences' start."""
         c, apply = self.config, self.loop.learner_network.apply
 
         def loss_fn(params, batch):
