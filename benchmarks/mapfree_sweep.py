@@ -73,6 +73,8 @@ ROWS: list[tuple[str, str, dict[str, Any], dict[str, Any]]] = [
         {"eps_end": 0.01},
     ),
     ("row 2, 64 lasers", "RobotNav-v0", {**ODOMETRY, "frames": 8, "num_lasers": 64}, {}),
+    # memory beyond frame stacks: a GRU between the MLP and the heads (--memory)
+    ("row 1 + GRU 128", "RobotNav-v0", ODOMETRY, {"memory": 128}),
 ]
 
 

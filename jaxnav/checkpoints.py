@@ -20,7 +20,7 @@ import hashlib
 import json
 import os
 import shutil
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -220,13 +220,13 @@ class Checkpoints:
         like_state: Any,
         like_metrics: dict[str, Any],
         step: int | None = None,
-        legacy: tuple[Any, Callable[[Any], Any]] | None = None,
+        legacy: Sequence[tuple[Any, Callable[[Any], Any]]] = (),
     ) -> tuple[int, Any, dict, dict]:
         """``(logs_done, state, metrics, meta)`` of checkpoint ``step`` (default: the newest);
         the ``like_*`` arguments give structure, shapes and dtypes (abstract values are
-        fine). ``legacy``: ``(like, upgrade)`` for a state saved in an earlier structure,
-        tried where the checkpoint's is not ``like_state``'s; ``upgrade`` turns it into one
-        like ``like_state``."""
+        fine). ``legacy``: ``(like, upgrade)`` of each earlier structure a state may have been
+        saved in, tried in turn where the checkpoint's is not ``like_state``'s; ``upgrade``
+        turns it into one like ``like_state``."""
         step = self.latest() if step is None else step
         if step is None:
             raise FileNotFoundError(f"{self.directory}: no checkpoint")
@@ -234,13 +234,14 @@ class Checkpoints:
             arrays, meta, abstract = self._read(step, like_state, like_metrics)
             upgrade = None
         except ValueError as error:  # orbax's, for another tree structure
-            if legacy is None:
-                raise
-            like_state, upgrade = legacy
-            try:
-                arrays, meta, abstract = self._read(step, like_state, like_metrics)
-            except ValueError:
-                raise error from None  # in neither layout: what differs from today's
+            for like_state, upgrade in legacy:  # noqa: B007 (the one that reads is kept)
+                try:
+                    arrays, meta, abstract = self._read(step, like_state, like_metrics)
+                    break
+                except ValueError:
+                    continue
+            else:
+                raise error from None  # in no layout: what differs from today's
         _check_like(arrays, abstract)  # orbax restores what was saved, whatever the target
         state = _from_disk(arrays["state"], like_state)
         metrics = {k: np.array(arrays["metrics"][k]) for k in like_metrics}  # keep the order

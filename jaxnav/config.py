@@ -49,6 +49,9 @@ class TrainConfig:
     # (``Trainer.norm_impl``)
     fused_layer_norm: bool = False
     compute_dtype: str = "float32"  # of the hidden layers' matrix products
+    # units of a GRU cell between the MLP and the heads (a recurrent network whose hidden
+    # state is carried along each env's episode, zeros at its start); 0: none
+    memory: int = 0
     loss: str = "huber"
     # replay
     buffer_size: int = 100_000
@@ -226,6 +229,7 @@ class TrainConfig:
             "eps_decay_steps": (1, MAX_STEPS),
             "log_interval": (1, MAX_STEPS),
             "eval_episodes": (0, 10**7),
+            "memory": (0, 65536),
         }
         for name, (lo, hi) in ints.items():
             v = getattr(self, name)
@@ -290,6 +294,12 @@ class TrainConfig:
             raise ValueError(
                 f"total_timesteps={self.total_timesteps}: rounded up to whole logging intervals "
                 f"it exceeds {MAX_STEPS} steps"
+            )
+        if self.memory and not self.algorithm.recurrent:
+            recurrent = ", ".join(n for n, a in ALGORITHMS.items() if a.recurrent)
+            raise ValueError(
+                f"memory={self.memory}: algo={self.algo} has no recurrent network; "
+                f"memory is for algo {recurrent}"
             )
         self.algorithm.validate(self)
 

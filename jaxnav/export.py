@@ -8,8 +8,10 @@ field of view, range, frames, control period), the env id and kwargs, and where 
 - ``npz``: the arrays under plain names and the metadata as JSON (``jaxnav.deploy.policy``
   documents the layout and runs it with numpy alone).
 - ``onnx``: the same network as an ONNX graph written from the trained parameters (MatMul,
-  Add, LayerNormalization, Relu, the dueling combination, ArgMax; input ``obs`` float32
-  [batch, obs_size], outputs ``q_values`` and ``action``), the metadata as the model's
+  Add, LayerNormalization, Relu, the GRU's Sigmoid and Tanh, the dueling combination, ArgMax;
+  input ``obs`` float32 [batch, obs_size], outputs ``q_values`` and ``action``; a network with
+  memory also takes its state ``hidden`` float32 [batch, memory], zeros at an episode's
+  start, and returns the next one, ``next_hidden``), the metadata as the model's
   ``metadata_props["jaxnav"]`` (JSON). Needs the ``onnx`` package (``pip install
   'jaxnav[export]'``); run it with ``onnxruntime`` or any ONNX runtime of opset 17.
 
@@ -35,7 +37,7 @@ import numpy as np
 from jaxnav import run_dir
 from jaxnav.agents.dqn import QNetwork, check_input_fits
 from jaxnav.config import TrainConfig
-from jaxnav.deploy.policy import FORMAT, FORMAT_VERSION, Policy
+from jaxnav.deploy.policy import FORMAT, FORMAT_VERSION, GRU_GATES, Policy
 from jaxnav.envs import grid_maze
 from jaxnav.envs.robot import env as robot_env
 from jaxnav.safe_io import WriteFault, atomic_output, check_output_file
@@ -281,11 +283,18 @@ def policy_metadata(trainer: Any, source: dict[str, Any] | None = None) -> dict[
         "output": f"{trainer.algorithm.outputs} [batch, num_actions]; the policy takes the "
         "first largest",
     }
+    if net.memory:  # (absent without: the files of feed-forward networks stay as they were)
+        network["memory"] = int(net.memory)
+        network["hidden"] = (
+            "float32 [batch, memory]: the GRU's state, zeros at an episode's start; each step "
+            "reads it and returns the next"
+        )
     env_config = getattr(env, "config", None)
     return _jsonable(
         {
             "format": FORMAT,
-            "format_version": FORMAT_VERSION,
+            # a reader of version 1 would drop a recurrent network's memory
+            "format_version": FORMAT_VERSION if net.memory else 1,
             "env_id": config.env,
             "env_kwargs": dict(config.env_kwargs),
             "env_config": None if env_config is None else _config_dict(env_config),
@@ -315,6 +324,10 @@ def policy_arrays(network: QNetwork, params: Any) -> dict[str, np.ndarray]:
         if network.layer_norm:
             out[f"norm{i}_scale"] = p[f"LayerNorm_{i}"]["scale"]
             out[f"norm{i}_bias"] = p[f"LayerNorm_{i}"]["bias"]
+    for gate, biased in GRU_GATES.items() if network.memory else ():
+        out[f"gru_{gate}_kernel"] = p["memory"][gate]["kernel"]
+        if biased:
+            out[f"gru_{gate}_bias"] = p["memory"][gate]["bias"]
     if network.dueling:
         for head in ("value", "advantage"):
             out[f"{head}_kernel"], out[f"{head}_bias"] = p[head]["kernel"], p[head]["bias"]
@@ -334,6 +347,12 @@ def flax_params(arrays: dict[str, np.ndarray], network: dict[str, Any]) -> dict[
         if network["layer_norm"]:
             scale, bias = arrays[f"norm{i}_scale"], arrays[f"norm{i}_bias"]
             p[f"LayerNorm_{i}"] = {"scale": scale, "bias": bias}
+    if network.get("memory"):
+        p["memory"] = {
+            gate: {"kernel": arrays[f"gru_{gate}_kernel"]}
+            | ({"bias": arrays[f"gru_{gate}_bias"]} if biased else {})
+            for gate, biased in GRU_GATES.items()
+        }
     if network["dueling"]:
         for head in ("value", "advantage"):
             p[head] = {"kernel": arrays[f"{head}_kernel"], "bias": arrays[f"{head}_bias"]}
@@ -366,12 +385,16 @@ def to_trainer(
     net = policy.network
     env_id, kwargs = env_for(policy, env_id, overrides)
     # the network as trained; TrainConfig's defaults for the rest, which acting never reads
+    # (with memory an algorithm that trains one)
+    memory = int(net.get("memory", 0))
     config = TrainConfig(
         env=env_id,
         env_kwargs=kwargs,
         hidden_sizes=tuple(net["hidden_sizes"]),
         dueling=net["dueling"],
         layer_norm=net["layer_norm"],
+        memory=memory,
+        **({"algo": "pqn"} if memory else {}),
     )
     trainer = Trainer(config)
     onehot = net["onehot_sizes"]
@@ -432,6 +455,26 @@ def onnx_model(arrays: dict[str, np.ndarray], metadata: dict[str, Any]) -> Any:
             x = node("LayerNormalization", [x, scale, bias], f"h{i}_norm", axis=-1,
                      epsilon=float(net["layer_norm_epsilon"]))  # fmt: skip
         x = node("Relu", [x], f"h{i}")
+    memory = int(net.get("memory", 0))
+    if memory:  # flax's GRUCell: r, z gates; n = tanh(in + r (hn)); (1 - z) n + z h
+        gates = {}
+        for gate, biased in GRU_GATES.items():
+            read = x if gate[0] == "i" else "hidden"
+            kernel = const(f"gru_{gate}_kernel", arrays[f"gru_{gate}_kernel"])
+            gates[gate] = node("MatMul", [read, kernel], f"gru_{gate}_mm")
+            if biased:
+                bias = const(f"gru_{gate}_bias", arrays[f"gru_{gate}_bias"])
+                gates[gate] = node("Add", [gates[gate], bias], f"gru_{gate}")
+        r = node("Add", [gates["ir"], gates["hr"]], "gru_r_sum")
+        r = node("Sigmoid", [r], "gru_r")
+        z = node("Add", [gates["iz"], gates["hz"]], "gru_z_sum")
+        z = node("Sigmoid", [z], "gru_z")
+        n = node("Mul", [r, gates["hn"]], "gru_r_hn")
+        n = node("Tanh", [node("Add", [gates["in"], n], "gru_n_sum")], "gru_n")
+        keep = node("Sub", [const("one", np.ones((), np.float32)), z], "gru_1_minus_z")
+        new = node("Mul", [keep, n], "gru_new")
+        old = node("Mul", [z, "hidden"], "gru_old")
+        x = node("Add", [new, old], "next_hidden")
     if net["dueling"]:
         v = node("MatMul", [x, const("value_kernel", arrays["value_kernel"])], "value_mm")
         v = node("Add", [v, const("value_bias", arrays["value_bias"])], "value")
@@ -445,18 +488,15 @@ def onnx_model(arrays: dict[str, np.ndarray], metadata: dict[str, Any]) -> Any:
         node("Add", [q, const("head_bias", arrays["head_bias"])], "q_values")
     # the first largest Q-value, as jnp.argmax
     node("ArgMax", ["q_values"], "action", axis=1, keepdims=0, select_last_index=0)
-    graph = helper.make_graph(
-        nodes,
-        "jaxnav_policy",
-        [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["batch", net["obs_size"]])],
-        [
-            helper.make_tensor_value_info(
-                "q_values", TensorProto.FLOAT, ["batch", net["num_actions"]]
-            ),
-            helper.make_tensor_value_info("action", TensorProto.INT64, ["batch"]),
-        ],
-        initializer=weights,
-    )
+    inputs = [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["batch", net["obs_size"]])]
+    outputs = [
+        helper.make_tensor_value_info("q_values", TensorProto.FLOAT, ["batch", net["num_actions"]]),
+        helper.make_tensor_value_info("action", TensorProto.INT64, ["batch"]),
+    ]
+    if memory:
+        for names, name in ((inputs, "hidden"), (outputs, "next_hidden")):
+            names.append(helper.make_tensor_value_info(name, TensorProto.FLOAT, ["batch", memory]))
+    graph = helper.make_graph(nodes, "jaxnav_policy", inputs, outputs, initializer=weights)
     model = helper.make_model(
         graph,
         producer_name="jaxnav",
@@ -593,7 +633,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(
         f"wrote {path} ({size / 1024:,.0f} KiB): {metadata['env_id']}, "
         f"{net['obs_size']} inputs -> {'-'.join(map(str, net['hidden_sizes']))} -> "
-        f"{net['num_actions']} actions ({', '.join(a['name'] for a in metadata['actions'])})"
+        + (f"GRU {net['memory']} -> " if net.get("memory") else "")
+        + f"{net['num_actions']} actions ({', '.join(a['name'] for a in metadata['actions'])})"
     )
     if net["trained_compute_dtype"] != "float32":
         print(

@@ -169,7 +169,7 @@ def train_seeds(
     done = 0 if checkpoints is None else checkpoints.newest_intact(_warn) or 0
     if done:
         try:
-            legacy = trainer.legacy_checkpoint_layout(state_like)
+            legacy = trainer.legacy_checkpoint_layouts(state_like)
             done, state, metrics, meta = checkpoints.restore(state_like, metrics, done, legacy)
             state = sharding.place(state, trainer.mesh, trainer.state_specs(state_like))
         except Exception as e:  # orbax raises many kinds for a damaged or foreign checkpoint

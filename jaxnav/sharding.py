@@ -54,6 +54,7 @@ def state_specs(state: Any, algo_specs: Any) -> Any:
         obs=per_env,
         episode_return=per_env,
         episode_length=per_env,
+        memory=None if state.memory is None else per_env,
     )
 
 

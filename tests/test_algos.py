@@ -113,7 +113,8 @@ def test_a_checkpoint_of_the_former_state_layout_restores_as_saved(name, tmp_pat
     trainer = Trainer(dataclasses.replace(TINY_TRAIN, algo=name))
     state = jax.device_get(jax.jit(jax.vmap(trainer.init))(jax.random.split(jax.random.key(3), 2)))
     algo_state = state.algo_state
-    fields = {f: getattr(state, f) for f in state.__dataclass_fields__ if f != "algo_state"}
+    fields = {f: getattr(state, f) for f in state.__dataclass_fields__}
+    del fields["algo_state"], fields["memory"]  # memory came later still
     former = FormerTrainState(
         **fields,
         target_params=getattr(algo_state, "target_params", None),
@@ -128,10 +129,10 @@ def test_a_checkpoint_of_the_former_state_layout_restores_as_saved(name, tmp_pat
     like = jax.eval_shape(lambda: state)
     with pytest.raises(ValueError):  # not in today's layout
         restoring.restore(like, metrics)
-    legacy = trainer.legacy_checkpoint_layout(like)
+    legacy = trainer.legacy_checkpoint_layouts(like)
     other = jax.tree.map(lambda x: jax.ShapeDtypeStruct((3, *x.shape[1:]), x.dtype), like)
     with pytest.raises(ValueError, match=r"was saved as \w+\[2.*this run expects \w+\[3"):
-        restoring.restore(other, metrics, legacy=trainer.legacy_checkpoint_layout(other))
+        restoring.restore(other, metrics, legacy=trainer.legacy_checkpoint_layouts(other))
     step, restored, restored_metrics, _ = restoring.restore(like, metrics, legacy=legacy)
     restoring.close()
     assert step == 1 and type(restored) is type(state)
@@ -142,19 +143,60 @@ def test_a_checkpoint_of_the_former_state_layout_restores_as_saved(name, tmp_pat
     np.testing.assert_array_equal(restored_metrics["loss"], metrics["loss"])
 
 
+@struct.dataclass
+class TrainStateBeforeMemory:
+    """``TrainState`` as checkpoints were saved before its ``memory`` field."""
+
+    params: Any
+    opt_state: Any
+    algo_state: Any
+    env_state: Any
+    obs: Any
+    episode_return: Any
+    episode_length: Any
+    key: Any
+    hparams: Any
+    diverged: Any
+    diverged_at: Any
+
+
+@pytest.mark.parametrize("name", sorted(ALGOS))
+def test_a_checkpoint_saved_before_memory_restores_as_saved(name, tmp_path):
+    trainer = Trainer(dataclasses.replace(TINY_TRAIN, algo=name))
+    state = jax.device_get(jax.jit(jax.vmap(trainer.init))(jax.random.split(jax.random.key(3), 2)))
+    fields = {f: getattr(state, f) for f in TrainStateBeforeMemory.__dataclass_fields__}
+    metrics = {"loss": np.arange(3, dtype=np.float32)[None]}
+    saving = Checkpoints(tmp_path / "checkpoints", keep=1)
+    saving.save(1, TrainStateBeforeMemory(**fields), metrics, {"seconds": {}})
+    saving.close()
+    restoring = Checkpoints(tmp_path / "checkpoints", keep=1)
+    like = jax.eval_shape(lambda: state)
+    with pytest.raises(ValueError):  # not in today's layout
+        restoring.restore(like, metrics)
+    legacy = trainer.legacy_checkpoint_layouts(like)
+    _, restored, _, _ = restoring.restore(like, metrics, legacy=legacy)
+    restoring.close()
+    assert type(restored) is type(state) and restored.memory is None
+    assert jax.tree.structure(restored) == jax.tree.structure(state)
+    as_data = lambda x: jax.random.key_data(x) if is_key(x) else x  # noqa: E731
+    for a, b in zip(jax.tree.leaves(restored), jax.tree.leaves(state), strict=True):
+        np.testing.assert_array_equal(as_data(a), as_data(b))
+
+
 @pytest.mark.parametrize("name", sorted(set(ALGOS) - set(FORMER_ALGOS)))
 def test_an_algorithm_added_since_has_no_former_layout_to_try(name, tmp_path):
-    """Its state has fields that layout never held: a checkpoint is read in today's only."""
+    """Its state has fields that layout never held: a checkpoint is read in today's, or in
+    the one before ``TrainState.memory``, only."""
     trainer = Trainer(dataclasses.replace(TINY_TRAIN, algo=name))
     state = jax.device_get(jax.jit(jax.vmap(trainer.init))(jax.random.split(jax.random.key(3), 2)))
     like = jax.eval_shape(lambda: state)
-    assert trainer.legacy_checkpoint_layout(like) is None
+    assert len(trainer.legacy_checkpoint_layouts(like)) == 1
     metrics = {"loss": np.arange(3, dtype=np.float32)[None]}
     saving = Checkpoints(tmp_path / "checkpoints", keep=1)
     saving.save(1, state, metrics, {"seconds": {}})
     saving.close()
     restoring = Checkpoints(tmp_path / "checkpoints", keep=1)
-    _, restored, _, _ = restoring.restore(like, metrics, legacy=None)
+    _, restored, _, _ = restoring.restore(like, metrics)
     restoring.close()
     as_data = lambda x: jax.random.key_data(x) if is_key(x) else x  # noqa: E731
     assert jax.tree.structure(restored) == jax.tree.structure(state)

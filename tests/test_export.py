@@ -385,3 +385,84 @@ def test_a_bfloat16_network_is_exported_in_float32_and_says_so(tmp_path):
     obs = observations(trainer, 1024)
     q_jax = np.asarray(float32.network.apply(params, jnp.asarray(obs)))
     assert_same_policy(q_jax, Policy.load(npz).q_values(obs), Policy.load(npz).act(obs))
+
+
+# ------------------------------------------------------------------ a network with memory
+MEMORY_CASE = TrainConfig(
+    env="GridMaze-Random-v0",
+    env_kwargs={"size": 7, "num_layouts": 8, "goals_per_layout": 4},
+    hidden_sizes=(32,),
+    algo="pqn",
+    layer_norm=True,
+    memory=16,
+)
+
+
+@pytest.fixture(scope="module")
+def exported_memory(tmp_path_factory):
+    """``(trainer, params, npz path, onnx path)`` of a random network with a GRU."""
+    trainer = Trainer(MEMORY_CASE)
+    params = random_params(trainer, jax.random.key(4))
+    arrays = export.policy_arrays(trainer.network, params)
+    metadata = export.policy_metadata(trainer, {"test": "memory"})
+    out = tmp_path_factory.mktemp("memory")
+    npz = export.write_policy(arrays, metadata, out / "policy.npz", "npz")
+    onnx_path = export.write_policy(arrays, metadata, out / "policy.onnx", "onnx")
+    return trainer, params, npz, onnx_path
+
+
+def test_exported_memory_acts_as_the_package_over_whole_episodes(exported_memory):
+    """The numpy policy and the ONNX graph, each carrying its own state, give the package's
+    greedy actions (``Trainer.greedy_policy``) at every step of 16 whole episodes."""
+    trainer, params, npz, onnx_path = exported_memory
+    env, env_params, n = trainer.env, trainer.env_params, 16
+    policy = Policy.load(npz)
+    assert policy.memory == 16 and policy.metadata["format_version"] == 2
+    session = ort.InferenceSession(str(onnx_path), providers=["CPUExecutionProvider"])
+    greedy = trainer.greedy_policy(params)
+
+    @jax.jit
+    def package(h, obs):  # the Q-values and the greedy policy's step
+        return trainer.network.apply(params, obs, h)[0], greedy.step(h, None, obs)
+
+    env_step = jax.jit(jax.vmap(env.step_no_reset, in_axes=(0, 0, 0, None)))
+    keys = jax.random.split(jax.random.key(6), n)
+    obs, state = jax.jit(jax.vmap(env.reset, in_axes=(0, None)))(keys, env_params)
+    hidden, onnx_hidden = greedy.start(n), np.zeros((n, 16), np.float32)
+    ended, steps = np.zeros(n, bool), 0
+    while not ended.all():
+        q_jax, (hidden, action) = jax.device_get(package(hidden, obs))
+        q = policy.q_values(np.asarray(obs))
+        chosen = policy.act(np.asarray(obs))
+        q_onnx, onnx_action, onnx_hidden = session.run(
+            ["q_values", "action", "next_hidden"],
+            {"obs": np.asarray(obs, np.float32), "hidden": onnx_hidden},
+        )
+        live = ~ended
+        assert_same_policy(q_jax[live], q[live], chosen[live])
+        assert_same_policy(q_jax[live], q_onnx[live], onnx_action[live])
+        np.testing.assert_array_equal(chosen, action)
+        np.testing.assert_allclose(policy.hidden, onnx_hidden, rtol=1e-5, atol=1e-6)
+        keys = jax.random.split(jax.random.key(steps), n)
+        obs, state, _, terminated, truncated, _ = env_step(keys, state, action, env_params)
+        ended |= np.asarray(terminated | truncated)
+        steps += 1
+    assert steps > 3  # episodes of several steps: the state carried through them
+    # an episode's start forgets the last one: a reset row is a fresh policy's
+    fresh = Policy.load(npz)
+    policy.reset(np.arange(n) < 4)
+    np.testing.assert_array_equal(policy.q_values(obs)[:4], fresh.q_values(obs[:4]))
+    assert not np.allclose(policy.q_values(obs)[4:], fresh.q_values(obs[4:]))
+    with pytest.raises(ValueError, match="reset"):
+        policy.act(np.asarray(obs[:3]))
+    assert "a GRU of 16 units" in describe(policy.metadata)
+
+
+def test_flax_params_invert_policy_arrays_of_a_network_with_memory(exported_memory):
+    trainer, params, npz, _ = exported_memory
+    policy = Policy.load(npz)
+    back = export.flax_params(policy.arrays, policy.network)
+    jax.tree.map(np.testing.assert_array_equal, back, params)
+    trainer_back, params_back = export.to_trainer(policy)
+    assert trainer_back.network.memory == 16
+    jax.tree.map(np.testing.assert_array_equal, jax.tree.map(lambda x: x[0], params_back), params)

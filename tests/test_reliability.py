@@ -33,10 +33,15 @@ TINY = [
 
 
 # the algorithms' own flags on top of TINY: PQN steps each of the 4 envs twice per iteration
-# and takes 2 minibatches of 4 transitions (2 epochs, its preset) from every rollout
+# and takes 2 minibatches of 4 transitions (2 epochs, its preset) from every rollout; with a
+# GRU of 8 units ("-memory") the minibatches are 2 envs' sequences, for PPO too
+PQN_FLAGS = ["--algo", "pqn", "--rollout-length", "2", "--num-minibatches", "2"]
+PPO_MEMORY = ["--algo", "ppo", "--rollout-length", "2", "--num-minibatches", "2", "--memory", "8"]
 ALGO_FLAGS = {
     "dqn": [],
-    "pqn": ["--algo", "pqn", "--rollout-length", "2", "--num-minibatches", "2"],
+    "pqn": PQN_FLAGS,
+    "pqn-memory": [*PQN_FLAGS, "--memory", "8"],
+    "ppo-memory": PPO_MEMORY,
 }
 
 
@@ -112,7 +117,8 @@ def test_kill_9_at_an_arbitrary_moment_then_resume_is_bitwise_identical(
     assert not run_dir.partial_dir(out).exists()
     # what reproducing it needs is saved with it
     doc = json.loads((out / "config.json").read_text())
-    assert doc["config"]["algo"] == algo
+    assert doc["config"]["algo"] == algo.split("-")[0]
+    assert doc["config"]["memory"] == (8 if algo.endswith("memory") else 0)
     assert doc["environment"]["jax_backend"] == jax.default_backend()
     assert doc["environment"]["packages"]["jax"] == jax.__version__
     assert doc["checkpointing"] == {"checkpoint_every": 64, "keep_checkpoints": 2}

@@ -148,3 +148,34 @@ def test_kernels_over_devices_train_as_one_device(num_seeds, monkeypatch):
         np.testing.assert_allclose(metrics1[k], metrics2[k], rtol=1e-4, atol=1e-5, err_msg=k)
     close = lambda a, b: np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5)  # noqa: E731
     jax.tree.map(close, jax.device_get(state1.params), jax.device_get(state2.params))
+
+
+@pytest.mark.parametrize("algo", ["pqn", "ppo"])
+def test_a_recurrent_network_over_devices_trains_as_one_device(algo):
+    """``--memory``: each device steps half of a seed's envs and holds their hidden states;
+    a minibatch's sequences are split over the devices as one device's rows would be. (No
+    dueling heads: a policy's logits leave V without a gradient but rounding, which Adam
+    scales up.)"""
+    config = dataclasses.replace(
+        TINY_TRAIN, algo=algo, layer_norm=True, rollout_length=4, num_minibatches=2,
+        num_epochs=2, memory=8, total_timesteps=128, dueling=False,
+    )  # fmt: skip
+    two = Trainer(dataclasses.replace(config, devices=2))
+    state2, metrics2 = run_sharded(two, KEY)
+    assert {s.data.shape for s in state2.memory.addressable_shards} == {(1, 2, 8)}
+    state1, metrics1 = run_sharded(Trainer(config), KEY)
+    assert (metrics1["loss"] != 0).all()
+    for k in metrics1:
+        np.testing.assert_allclose(metrics1[k], metrics2[k], rtol=1e-5, atol=1e-6, err_msg=k)
+    close = lambda a, b: np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6)  # noqa: E731
+    jax.tree.map(close, jax.device_get(state1.params), jax.device_get(state2.params))
+    jax.tree.map(close, jax.device_get(state1.memory), jax.device_get(state2.memory))
+
+
+def test_config_names_a_minibatch_of_sequences_the_devices_cannot_split():
+    config = dataclasses.replace(
+        TINY_TRAIN, algo="pqn", num_envs=4, rollout_length=2, num_minibatches=4, memory=8,
+        devices=2,
+    )  # fmt: skip
+    with pytest.raises(ValueError, match="num_minibatches=4: with memory=8 a minibatch's 1 envs"):
+        config.validate()

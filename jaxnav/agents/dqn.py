@@ -1,5 +1,5 @@
-"""Functional Q-learning pieces: Q-network (``dueling`` and ``layer_norm`` flags), the TD
-regression loss, DQN targets (``double`` flag) and the replay buffer.
+"""Functional Q-learning pieces: Q-network (``dueling``, ``layer_norm`` and ``memory``
+flags), the TD regression loss, DQN targets (``double`` flag) and the replay buffer.
 
 With ``dueling=False`` and ``double=False`` this is the paper's "simple DQN"; with both on it is
 the paper's model (eq. 6 and 7 of the paper). PQN (``jaxnav.agents.pqn``) uses the same network
@@ -8,7 +8,8 @@ the paper's model (eq. 6 and 7 of the paper). PQN (``jaxnav.agents.pqn``) uses t
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import dataclasses
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import flax.linen as nn
@@ -103,7 +104,12 @@ class QNetwork(nn.Module):
     "bfloat16" runs the matrix products in bfloat16 (parameters and Q-values stay float32).
     ``norm_impl`` computes LayerNorm and ReLU: "flax" (``nn.LayerNorm``, ``nn.relu``), or as
     one op with a float32 gradient (``agents.layer_norm``) in jnp ("fused") or as Pallas
-    kernels ("pallas"); all three have the same parameters, initialized alike."""
+    kernels ("pallas"); all three have the same parameters, initialized alike.
+
+    ``memory`` > 0 puts a GRU cell (``nn.GRUCell``, named "memory") of that many units between
+    the MLP and the heads: the network is then called with its hidden state ``[N, memory]``
+    (zeros at an episode's start, ``initial_memory``) and returns ``(outputs, hidden state
+    after the step)``; ``unroll`` runs it over sequences."""
 
     num_actions: int
     hidden_sizes: Sequence[int] = (512, 256, 128, 64)
@@ -114,6 +120,11 @@ class QNetwork(nn.Module):
     norm_impl: str = "flax"
     mesh: Mesh | None = None  # "pallas" over several devices: each device's rows
     rows_axis: str | None = None  # the mesh axis the rows (envs, batch) are split over
+    memory: int = 0  # units of the GRU cell after the MLP; 0: none (a feed-forward network)
+
+    def initial_memory(self, n: int) -> jax.Array | None:
+        """The hidden state of ``n`` episodes' starts (zeros), None without ``memory``."""
+        return jnp.zeros((n, self.memory), jnp.float32) if self.memory else None
 
     def compute_params(self, params: Any) -> Any:
         """``params`` with the hidden layers' weight matrices in ``compute_dtype``, which the
@@ -129,7 +140,7 @@ class QNetwork(nn.Module):
         return jax.tree_util.tree_map_with_path(cast, params)
 
     @nn.compact
-    def __call__(self, obs: jax.Array) -> jax.Array:
+    def __call__(self, obs: jax.Array, hidden: jax.Array | None = None) -> Any:
         if self.onehot_sizes is None:
             x = obs.astype(jnp.float32)  # observations may be stored compactly (int8)
         else:
@@ -154,6 +165,16 @@ class QNetwork(nn.Module):
                 x = nn.LayerNorm(dtype=dtype)(x)
             x = nn.relu(x)
         x = x.astype(jnp.float32)  # the heads in float32: Q-values are compared and regressed
+        if not self.memory:
+            return self.heads(x)
+        if hidden is None:  # (``init``) an episode's start
+            hidden = jnp.zeros((*x.shape[:-1], self.memory), jnp.float32)
+        hidden, x = nn.GRUCell(self.memory, name="memory")(hidden, x)
+        return self.heads(x), hidden
+
+    def heads(self, x: jax.Array) -> jax.Array:
+        """The outputs of the last hidden features ``x``: one dense layer, or the dueling
+        heads."""
         if not self.dueling:
             return nn.Dense(self.num_actions, name=f"Dense_{len(self.hidden_sizes)}")(x)
         # eq. 7, Q = V + (A - mean_a A), which makes V and A identifiable, is linear in x: one
@@ -167,6 +188,49 @@ class QNetwork(nn.Module):
         kernel_mean = sum(kernel[:, a : a + 1] for a in columns) / self.num_actions
         bias_mean = sum(bias[a] for a in columns) / self.num_actions
         return jnp.dot(x, value_kernel + kernel - kernel_mean) + (value_bias + bias - bias_mean)
+
+
+@dataclasses.dataclass(frozen=True)
+class RecurrentPolicy:
+    """A policy that keeps a state through each episode (a recurrent network's hidden state):
+    ``start(n)`` is the state of ``n`` episodes' starts, ``step(state, key, obs[N, D]) ->
+    (state, action[N])`` acts and advances it (``jaxnav.evaluate.play`` carries it)."""
+
+    start: Callable[[int], Any]
+    step: Callable[[Any, jax.Array, jax.Array], tuple[Any, jax.Array]]
+
+
+def reset_memory(hidden: jax.Array, done: jax.Array) -> jax.Array:
+    """``hidden`` [N, H] with zeros (an episode's start) where ``done`` [N]: the next step of
+    those envs is a new episode's first, which must not read the ended one's memory."""
+    return jnp.where(done[:, None], jnp.zeros_like(hidden), hidden)
+
+
+def unroll(
+    apply_fn: Any, params: Any, obs: jax.Array, hidden: jax.Array, done: jax.Array
+) -> tuple[jax.Array, jax.Array]:
+    """A recurrent network (``QNetwork`` with ``memory``) over sequences laid out [time, env]:
+    ``(outputs [T, N, A], hidden states after each step [T, N, H])`` of observations ``obs``
+    [T, N, D] from ``hidden`` [N, H], the state reset (``reset_memory``) after the steps where
+    ``done`` [T, N]."""
+
+    def step(h: jax.Array, xs: tuple[jax.Array, jax.Array]) -> tuple[jax.Array, tuple]:
+        o, d = xs
+        out, after = apply_fn(params, o, h)
+        return reset_memory(after, d), (out, after)
+
+    return jax.lax.scan(step, hidden, (obs, done))[1]
+
+
+def sequence_outputs(
+    apply_fn: Any, params: Any, obs: jax.Array, hidden: jax.Array, done: jax.Array
+) -> jax.Array:
+    """``unroll`` over a minibatch of sequences laid out [env, time] (``obs`` [B, T, D],
+    ``hidden`` [B, H] their state at the start, ``done`` [B, T]): the outputs as rows
+    [B * T, A] in that order, env by env."""
+    swap = lambda x: jnp.swapaxes(x, 0, 1)  # noqa: E731
+    out = unroll(apply_fn, params, swap(obs), hidden, swap(done))[0]
+    return swap(out).reshape(-1, out.shape[-1])
 
 
 # ---------------------------------------------------------------------------- replay

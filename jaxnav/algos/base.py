@@ -16,6 +16,8 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from jaxnav.sharding import mesh_shape
+
 
 @struct.dataclass
 class Transitions:
@@ -28,6 +30,8 @@ class Transitions:
     terminated: jax.Array
     done: jax.Array
     value: jax.Array  # the largest output of the acting pass (max_a Q(obs, a))
+    # with memory: the hidden state the acting pass read [time, env, memory]; else None
+    memory: Any = None
 
 
 @struct.dataclass
@@ -44,6 +48,9 @@ class TrainState:
     # divergence guard: set once, at the first iteration where a watched quantity is NaN/Inf
     diverged: jax.Array  # int32, see ``jaxnav.train.DIVERGENCE_QUANTITIES``
     diverged_at: jax.Array  # int32, env steps when it was seen (0 if not diverged)
+    # with memory (``TrainConfig.memory``): each env's hidden state [N, memory] for its next
+    # step, zeros where an episode starts; None without (checkpoints keep their layout)
+    memory: Any = None
 
 
 # gradient steps per iteration, at most (a scan of them is compiled into every iteration)
@@ -91,6 +98,8 @@ class Algorithm:
     outputs = "Q-values"
     # how training acts (``choose_actions``), as progress lines name its episodes
     acting = "eps-greedy"
+    # whether it trains a recurrent network (``TrainConfig.memory``)
+    recurrent = False
 
     def __init__(self, loop: Loop):
         self.loop = loop
@@ -172,10 +181,26 @@ class Algorithm:
 class RolloutAlgorithm(Algorithm):
     """An algorithm that learns from each rollout of ``num_envs x rollout_length`` steps in
     ``num_epochs`` passes of ``num_minibatches`` gradient steps (PQN, PPO): their sizes and
-    check, written once."""
+    check, written once. With ``memory`` a minibatch is the whole rollouts of some envs."""
+
+    recurrent = True
 
     @classmethod
     def validate(cls, config: Any) -> None:
+        if config.memory and config.num_envs % config.num_minibatches:
+            raise ValueError(
+                f"num_minibatches={config.num_minibatches} does not divide num_envs="
+                f"{config.num_envs}: with memory={config.memory} a minibatch is whole "
+                "sequences of envs"
+            )
+        shards = mesh_shape(config.num_seeds, config.devices)[1]
+        if config.memory and (config.num_envs // config.num_minibatches) % shards:
+            raise ValueError(
+                f"num_minibatches={config.num_minibatches}: with memory={config.memory} a "
+                f"minibatch's {config.num_envs // config.num_minibatches} envs are not a "
+                f"multiple of the {shards} devices each seed's envs are split over "
+                f"(devices={config.devices}, num_seeds={config.num_seeds})"
+            )
         if config.steps_per_iteration % config.num_minibatches:
             raise ValueError(
                 f"num_minibatches={config.num_minibatches} does not divide the "

@@ -9,6 +9,11 @@ outputs are the logits, so evaluation and export read the greedy action as their
 a Q-network. The value network is the same MLP with one output, kept in ``algo_state`` with its
 own optimizer state (PureJaxRL's actor-critic: two trunks); each network's gradient is clipped
 to ``max_grad_norm`` on its own.
+
+With ``memory`` the policy is recurrent (its GRU's state carried by the loop) and a minibatch
+is the whole rollouts of some envs, the policy run over each from its state at the rollout's
+start (``agents.dqn.unroll``); the value network stays feed-forward, a baseline of the
+observation alone.
 """
 
 from __future__ import annotations
@@ -19,7 +24,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from jaxnav.agents import pqn
+from jaxnav.agents import dqn, pqn
 from jaxnav.algos import backend
 from jaxnav.algos.base import LossFn, RolloutAlgorithm, TrainState, Transitions
 
@@ -62,9 +67,9 @@ def gae(
 
 
 def log_prob(logits: jax.Array, action: jax.Array) -> jax.Array:
-    """log pi(action | logits) of a categorical policy, [B]."""
+    """log pi(action | logits) of a categorical policy, [B] (or the leading axes of both)."""
     log_pi = jax.nn.log_softmax(logits, axis=-1)
-    return jnp.take_along_axis(log_pi, action[:, None], axis=-1)[:, 0]
+    return jnp.take_along_axis(log_pi, action[..., None], axis=-1)[..., 0]
 
 
 def policy_loss(
@@ -129,9 +134,9 @@ class PPO(RolloutAlgorithm):
 
     def __init__(self, loop: Any):
         super().__init__(loop)
-        # the value network: the policy's MLP (same flags) with one output
-        self.critic = loop.network.clone(num_actions=1, dueling=False)
-        self.learner_critic = loop.learner_network.clone(num_actions=1, dueling=False)
+        # the value network: the policy's MLP (same flags) with one output, feed-forward
+        self.critic = loop.network.clone(num_actions=1, dueling=False, memory=0)
+        self.learner_critic = loop.learner_network.clone(num_actions=1, dueling=False, memory=0)
 
     def init_state(self, params: Any, key: jax.Array, hparams: Any) -> PPOState:
         critic = self.critic.init(key, jnp.zeros((1, self.loop.obs_size)))
@@ -144,12 +149,20 @@ class PPO(RolloutAlgorithm):
         return jax.random.categorical(keys[0], outputs, axis=-1)
 
     def minibatch_loss(self, ts: TrainState) -> LossFn:
-        """The policy's loss (``policy_loss``) on ``(obs, action, old_log_prob, advantage)``."""
+        """The policy's loss (``policy_loss``) on ``(obs, action, old_log_prob, advantage)``;
+        with memory on whole sequences of B envs (each of those [B, T, ...]) followed by
+        ``done [B, T]`` and ``hidden [B, H]``, their state at the sequences' start."""
         c, apply = self.config, self.loop.learner_network.apply
 
         def loss_fn(params, batch):
-            obs, action, old_log_prob, advantage = batch
-            logits = apply(params, obs)
+            obs, action, old_log_prob, advantage, *memory = batch
+            if memory:
+                logits = dqn.sequence_outputs(apply, params, obs, memory[1], memory[0])
+                action, old_log_prob, advantage = (
+                    x.reshape(-1) for x in (action, old_log_prob, advantage)
+                )
+            else:
+                logits = apply(params, obs)
             return policy_loss(logits, action, old_log_prob, advantage, c.clip_eps, c.ent_coef)
 
         return loss_fn
@@ -175,14 +188,21 @@ class PPO(RolloutAlgorithm):
         advantage, target = gae(
             tr.reward, tr.terminated, tr.done, value, next_value, hp.gamma, hp.td_lambda
         )
-        n = c.steps_per_iteration
-        obs = tr.obs.reshape(n, -1)
-        action = tr.action.reshape(n)
-        # the acting policy's log-probabilities: the parameters are still the rollout's
-        old_log_prob = log_prob(loop.learner_network.apply(ts.params, obs), action)
-        data = jax.lax.stop_gradient(
-            (obs, action, old_log_prob, advantage.reshape(n), value.reshape(n), target.reshape(n))
-        )
+        apply = loop.learner_network.apply
+        if c.memory:  # minibatches of envs: each env's sequence, its state at the start
+            n = c.num_envs
+            # the acting policy's log-probabilities: the parameters are still the rollout's,
+            # each step read with the state it acted with
+            old_log_prob = log_prob(apply(ts.params, tr.obs, tr.memory)[0], tr.action)
+            steps = (tr.obs, tr.action, old_log_prob, advantage, value, target)
+            data = (*(jnp.swapaxes(x, 0, 1) for x in steps), tr.done.T, tr.memory[0])
+        else:
+            n = c.steps_per_iteration
+            obs, action = tr.obs.reshape(n, -1), tr.action.reshape(n)
+            old_log_prob = log_prob(apply(ts.params, obs), action)
+            steps = (advantage, value, target)
+            data = (obs, action, old_log_prob, *(x.reshape(n) for x in steps))
+        data = jax.lax.stop_gradient(data)
         actor_loss = self.minibatch_loss(ts)
 
         def critic_loss(params, batch):
@@ -193,11 +213,11 @@ class PPO(RolloutAlgorithm):
 
         def minibatch(carry, rows):
             ts, total = carry
-            obs, action, old_log_prob, advantage, old_value, target = jax.tree.map(
+            obs, action, old_log_prob, advantage, old_value, target, *sequences = jax.tree.map(
                 lambda x: x[rows], data
             )
             ts, actor_rows = loop.gradient_step(
-                ts, (obs, action, old_log_prob, advantage), actor_loss
+                ts, (obs, action, old_log_prob, advantage, *sequences), actor_loss
             )
             state = ts.algo_state
             critic, critic_opt, critic_rows = loop.optimize(

@@ -1,7 +1,12 @@
 """PQN (Gallici et al. 2024): every iteration is a rollout of ``rollout_length`` steps of
 every env, lambda-returns from the online network (``agents.pqn.lambda_returns``), then
 ``num_epochs`` shuffled passes of ``num_minibatches`` gradient steps over it; no replay, no
-target network (the LayerNorm network keeps the bootstrapped targets from diverging)."""
+target network (the LayerNorm network keeps the bootstrapped targets from diverging).
+
+With ``memory`` (a recurrent network) the targets come from the hidden states the rollout
+acted with, and a minibatch is the whole rollouts of some envs: the gradient step runs the
+network over each env's sequence from its hidden state at the rollout's start, reset where
+an episode ends (``agents.dqn.unroll``), as PQN-RNN (purejaxql) does."""
 
 from __future__ import annotations
 
@@ -22,14 +27,25 @@ class PQN(RolloutAlgorithm):
 
     def minibatch_loss(self, ts: TrainState) -> LossFn:
         """The regression on ``(obs [B, D], action [B], target [B])``, the target a
-        lambda-return."""
+        lambda-return; with memory on whole sequences of B envs, ``(obs [B, T, D], action
+        [B, T], target [B, T], done [B, T], hidden [B, H])``, ``hidden`` their state at the
+        sequences' start."""
         c, apply = self.config, self.loop.learner_network.apply
+        if not c.memory:
 
-        def loss_fn(params, batch):
-            obs, action, target = batch
-            return dqn.regression_loss(params, apply, obs, action, target, c.loss)
+            def loss_fn(params, batch):
+                obs, action, target = batch
+                return dqn.regression_loss(params, apply, obs, action, target, c.loss)
 
-        return loss_fn
+            return loss_fn
+
+        def sequence_loss(params, batch):
+            obs, action, target, done, hidden = batch
+            q = lambda p, o: dqn.sequence_outputs(apply, p, o, hidden, done)  # noqa: E731
+            rows = lambda x: x.reshape(-1)  # noqa: E731
+            return dqn.regression_loss(params, q, obs, rows(action), rows(target), c.loss)
+
+        return sequence_loss
 
     def next_values(self, params: Any, tr: Transitions, last_obs: jax.Array) -> jax.Array:
         """``max_a Q(s', a)`` for every step of rollout ``tr`` [T, N], the observation after
@@ -42,8 +58,14 @@ class PQN(RolloutAlgorithm):
         limit go through the network again (terminated ones do not bootstrap). The time
         limit cuts an env at most once in ``max_steps_in_episode`` steps, so, in a rollout
         no longer than that, at most once: one pass over one row an env. Longer rollouts (or
-        an env cut twice) take one pass over every next observation."""
+        an env cut twice) take one pass over every next observation. With memory every next
+        observation goes through the network, with the state after its step."""
         network = self.loop.learner_network
+        if tr.memory is not None:
+            # each next observation read with the hidden state after its step (reset only
+            # after it): the acting pass's states give them all in two passes, no loop
+            after = network.apply(params, tr.obs, tr.memory)[1]
+            return network.apply(params, tr.next_obs, after)[0].max(axis=-1)
         q_max = lambda obs: network.apply(params, obs).max(axis=-1)  # noqa: E731
         every = lambda _: q_max(tr.next_obs)  # noqa: E731
         if tr.reward.shape[0] > int(self.loop.env_params.max_steps_in_episode):
@@ -73,11 +95,13 @@ class PQN(RolloutAlgorithm):
             unrolled=backend.returns_unrolled(),
         )
         n = c.steps_per_iteration
-        data = (
-            tr.obs.reshape(n, -1),
-            tr.action.reshape(n),
-            jax.lax.stop_gradient(targets).reshape(n),
-        )
+        targets = jax.lax.stop_gradient(targets)
+        if c.memory:  # minibatches of envs: each env's sequence, its state at the start
+            n = c.num_envs
+            env_major = lambda x: jnp.swapaxes(x, 0, 1)  # noqa: E731
+            data = (*map(env_major, (tr.obs, tr.action, targets, tr.done)), tr.memory[0])
+        else:
+            data = (tr.obs.reshape(n, -1), tr.action.reshape(n), targets.reshape(n))
         loss_fn = self.minibatch_loss(ts)
 
         def minibatch(carry, rows):

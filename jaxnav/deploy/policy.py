@@ -7,6 +7,10 @@ npz: the network's arrays under the names below and its metadata as JSON in ``me
 
     dense{i}_kernel [in, out], dense{i}_bias [out]       hidden layer i (i = 0, 1, ...)
     norm{i}_scale [out], norm{i}_bias [out]              its LayerNorm, if the network has one
+    gru_{g}_kernel [in or H, H], gru_{g}_bias [H]        with memory (``network.memory`` = H):
+                                                         the GRU cell's gates g = ir, iz, in
+                                                         (from x, with biases), hr, hz (from
+                                                         the state, none), hn (with one)
     head_kernel, head_bias                               Q-values (without dueling heads)
     value_kernel [h, 1], value_bias [1]                  dueling: Q = V + (A - mean_a A)
     advantage_kernel [h, A], advantage_bias [A]
@@ -31,7 +35,9 @@ from typing import Any
 import numpy as np
 
 FORMAT = "jaxnav-policy"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # 2: a network with memory (feed-forward ones are still written as 1)
+# the GRU cell's weights by gate: whether it has a bias (flax's GRUCell, input then state)
+GRU_GATES = {"ir": True, "iz": True, "in": True, "hr": False, "hz": False, "hn": True}
 
 
 def expand_onehot(obs: np.ndarray, onehot_sizes: Sequence[int]) -> np.ndarray:
@@ -49,9 +55,31 @@ def expand_onehot(obs: np.ndarray, onehot_sizes: Sequence[int]) -> np.ndarray:
     return np.concatenate(parts, axis=-1)
 
 
-def forward(arrays: dict[str, np.ndarray], network: dict[str, Any], obs: np.ndarray) -> np.ndarray:
+def forward(
+    arrays: dict[str, np.ndarray],
+    network: dict[str, Any],
+    obs: np.ndarray,
+    hidden: np.ndarray | None = None,
+) -> np.ndarray:
     """Q-values ``float32[..., num_actions]`` of observations ``obs[..., obs_size]`` for the
-    network described by ``network`` (the metadata's ``"network"``) with weights ``arrays``."""
+    network described by ``network`` (the metadata's ``"network"``) with weights ``arrays``;
+    with memory, read with the state ``hidden`` (``step``)."""
+    return step(arrays, network, obs, hidden)[0]
+
+
+def _sigmoid(x: np.ndarray) -> np.ndarray:
+    return 0.5 * (1.0 + np.tanh(0.5 * x))  # no overflow for large negative x
+
+
+def step(
+    arrays: dict[str, np.ndarray],
+    network: dict[str, Any],
+    obs: np.ndarray,
+    hidden: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """``(Q-values, the next state)`` of observations ``obs[..., obs_size]``: a network with
+    memory reads the state ``hidden[..., memory]`` of the previous step (None: zeros, an
+    episode's start); one without returns None for the state."""
     try:
         obs = np.asarray(obs, np.float64)
     except (TypeError, ValueError):
@@ -74,11 +102,31 @@ def forward(arrays: dict[str, np.ndarray], network: dict[str, Any], obs: np.ndar
             var = np.square(x - mean).mean(axis=-1, keepdims=True)
             x = (x - mean) / np.sqrt(var + eps) * arrays[f"norm{i}_scale"] + arrays[f"norm{i}_bias"]
         x = np.maximum(x, 0).astype(np.float32)
+    memory = int(network.get("memory", 0))
+    if memory:
+        h = np.zeros((*x.shape[:-1], memory), np.float32) if hidden is None else hidden
+        if h.shape != (*x.shape[:-1], memory):
+            raise ValueError(
+                f"state of shape {h.shape} for observations of shape {obs.shape}; reset() the "
+                "policy where episodes start"
+            )
+        gate = {
+            g: (x if g[0] == "i" else h) @ arrays[f"gru_{g}_kernel"]
+            + (arrays[f"gru_{g}_bias"] if biased else 0)
+            for g, biased in GRU_GATES.items()
+        }
+        r = _sigmoid(gate["ir"] + gate["hr"])
+        z = _sigmoid(gate["iz"] + gate["hz"])
+        n = np.tanh(gate["in"] + r * gate["hn"])
+        x = hidden = ((1.0 - z) * n + z * h).astype(np.float32)
+    else:
+        hidden = None
     if not network["dueling"]:
-        return (x @ arrays["head_kernel"] + arrays["head_bias"]).astype(np.float32)
+        return (x @ arrays["head_kernel"] + arrays["head_bias"]).astype(np.float32), hidden
     value = x @ arrays["value_kernel"] + arrays["value_bias"]
     advantage = x @ arrays["advantage_kernel"] + arrays["advantage_bias"]
-    return (value + advantage - advantage.mean(axis=-1, keepdims=True)).astype(np.float32)
+    q = value + advantage - advantage.mean(axis=-1, keepdims=True)
+    return q.astype(np.float32), hidden
 
 
 def _scale(value: float) -> str:
@@ -97,7 +145,9 @@ def describe(metadata: dict[str, Any]) -> str:
         f"env: {metadata['env_id']} {json.dumps(metadata['env_kwargs'])}",
         f"network: {net['obs_size']} inputs -> {'-'.join(map(str, net['hidden_sizes']))} -> "
         f"{net['num_actions']} Q-values (dueling {net['dueling']}, layer norm "
-        f"{net['layer_norm']})",
+        f"{net['layer_norm']}"
+        + (f", a GRU of {net['memory']} units" if net.get("memory") else "")
+        + ")",
         "actions: "
         + ", ".join(
             f"{a['index']} {a['name']}"
@@ -151,7 +201,11 @@ def describe(metadata: dict[str, Any]) -> str:
 class Policy:
     """A loaded policy: ``policy.act(obs)`` is the greedy action (an int for one observation,
     an array for a batch), ``policy.q_values(obs)`` the Q-values, ``policy.metadata`` what
-    ``jaxnav.export`` recorded (observation layout, actions, sensors, env id and kwargs)."""
+    ``jaxnav.export`` recorded (observation layout, actions, sensors, env id and kwargs).
+
+    A policy with memory (``policy.memory`` > 0) keeps its state (``policy.hidden``): call
+    ``reset()`` at an episode's start (``reset(done)`` for the rows of a batch whose episode
+    ended); each ``act`` reads it and advances it one step, ``q_values`` only reads it."""
 
     def __init__(self, arrays: dict[str, np.ndarray], metadata: dict[str, Any]):
         """``ValueError`` (one line) unless ``metadata`` and ``arrays`` make a network of
@@ -167,6 +221,7 @@ class Policy:
         self.arrays = {k: np.asarray(v, np.float32) for k, v in arrays.items()}
         self.metadata = metadata
         self.network = metadata.get("network")
+        self.hidden: np.ndarray | None = None  # with memory: the state for the next step
         try:  # the weights a forward pass reads, in shapes that fit: not at the first act
             q = forward(self.arrays, self.network, np.zeros(int(self.network["obs_size"])))
         except (KeyError, TypeError, ValueError, IndexError) as e:
@@ -205,12 +260,31 @@ class Policy:
     def action_names(self) -> list[str]:
         return [a["name"] for a in self.metadata["actions"]]
 
+    @property
+    def memory(self) -> int:
+        """Units of the network's GRU cell (0: no memory)."""
+        return int(self.network.get("memory", 0))
+
+    def reset(self, done: np.ndarray | None = None) -> None:
+        """An episode's start: the state back to zeros, of every row or of the rows of a batch
+        where ``done`` (bool [batch]) is true."""
+        if done is None or self.hidden is None:
+            self.hidden = None
+        else:
+            self.hidden = np.where(np.asarray(done, bool)[..., None], 0.0, self.hidden)
+            self.hidden = self.hidden.astype(np.float32)
+
     def q_values(self, obs: np.ndarray) -> np.ndarray:
-        return forward(self.arrays, self.network, obs)
+        """The Q-values of ``obs``, with memory read with the current state (not advanced)."""
+        return forward(self.arrays, self.network, obs, self.hidden)
 
     def act(self, obs: np.ndarray) -> Any:
-        """The greedy action: the first of the largest Q-values, as ``jnp.argmax`` picks."""
-        action = np.argmax(self.q_values(obs), axis=-1)
+        """The greedy action: the first of the largest Q-values, as ``jnp.argmax`` picks; with
+        memory the state advances to the one after ``obs``."""
+        q, hidden = step(self.arrays, self.network, obs, self.hidden)
+        if self.memory:
+            self.hidden = hidden
+        action = np.argmax(q, axis=-1)
         return int(action) if action.ndim == 0 else action
 
 

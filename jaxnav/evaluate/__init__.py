@@ -11,12 +11,22 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxnav.agents.dqn import RecurrentPolicy
 from jaxnav.environment import Environment, EnvParams
 
 if TYPE_CHECKING:
     from jaxnav.train import Trainer
 
-Policy = Callable[[jax.Array, jax.Array], jax.Array]  # (key, obs[N, D]) -> action[N]
+# (key, obs[N, D]) -> action[N], or one that keeps a state through each episode (a recurrent
+# network's hidden state)
+Policy = Callable[[jax.Array, jax.Array], jax.Array] | RecurrentPolicy
+
+
+def recurrent(policy: Policy) -> RecurrentPolicy:
+    """``policy`` as a ``RecurrentPolicy`` (a stateless one keeps None)."""
+    if isinstance(policy, RecurrentPolicy):
+        return policy
+    return RecurrentPolicy(lambda n: None, lambda state, key, obs: (state, policy(key, obs)))
 
 
 def random_policy(num_actions: int) -> Policy:
@@ -75,7 +85,8 @@ def play(
     Steps without auto-reset (``env.step_no_reset``, the time limit of ``env.step``): an ended
     episode's state stays as it ended, so ``record=True`` also returns ``"states"``, the
     batch's states before the first step and after each one (leading axis ``max_steps + 1``),
-    the final pose included.
+    the final pose included. A ``RecurrentPolicy`` starts every episode from its
+    ``start`` state (each plays one episode: no state crosses from another).
     """
     num_episodes = obs.shape[0]
     shortest = jax.vmap(env.shortest_path_length, in_axes=(0, None))(state, params)
@@ -83,15 +94,16 @@ def play(
     step_length = jax.vmap(env.step_length, in_axes=(0, 0, None))
     zeros = jnp.zeros(num_episodes)
     false = jnp.zeros(num_episodes, bool)
-    init = (obs, state, false, zeros, zeros, zeros, false, false, false)
+    acting = recurrent(policy)
+    init = (obs, state, false, zeros, zeros, zeros, false, false, false, acting.start(num_episodes))
     freeze = lambda ended, old, new: jax.tree.map(  # noqa: E731
         lambda o, n: jnp.where(ended.reshape(ended.shape + (1,) * (n.ndim - 1)), o, n), old, new
     )
 
     def step(carry, key):
-        obs, state, ended, ret, steps, path, success, collision, timeout = carry
+        obs, state, ended, ret, steps, path, success, collision, timeout, memory = carry
         k_pol, k_env = jax.random.split(key)
-        action = policy(k_pol, obs)
+        memory, action = acting.step(memory, k_pol, obs)
         new_obs, new_state, reward, terminated, truncated, info = jax.vmap(
             env.step_no_reset, in_axes=(0, 0, 0, None)
         )(jax.random.split(k_env, num_episodes), state, action, params)
@@ -104,11 +116,11 @@ def play(
         timeout = timeout | (live & truncated)
         obs, state = freeze(ended, (obs, state), (new_obs, new_state))
         ended = ended | terminated | truncated
-        carry = (obs, state, ended, ret, steps, path, success, collision, timeout)
+        carry = (obs, state, ended, ret, steps, path, success, collision, timeout, memory)
         return carry, (state if record else None)
 
     carry, states = jax.lax.scan(step, init, jax.random.split(key, max_steps))
-    _, _, _, ret, steps, path, success, collision, timeout = carry
+    _, _, _, ret, steps, path, success, collision, timeout, _ = carry
     out = {
         "return": ret,
         "steps": steps,

@@ -55,7 +55,7 @@ METRIC_NAMES = (
 DIVERGENCE_QUANTITIES = ("q_values", "loss", "params")
 
 # The fields of ``TrainState`` that held the DQN's target network and replay buffer (None for
-# PQN) in checkpoints saved before ``algo_state`` held them (``legacy_checkpoint_layout``)
+# PQN) in checkpoints saved before ``algo_state`` held them (``legacy_checkpoint_layouts``)
 LEGACY_ALGO_FIELDS = ("target_params", "buffer")
 
 # XLA options every training program is compiled with (``jit_training``). On a GPU, XLA records a
@@ -124,6 +124,7 @@ class Trainer:
             layer_norm=config.layer_norm,
             compute_dtype=config.compute_dtype,
             norm_impl=self.norm_impl(config),
+            memory=config.memory,
         )
         # the network of the training program: over several devices its LayerNorm kernels
         # run on each device's rows; evaluation and export read ``network``, whose arrays are
@@ -161,9 +162,10 @@ class Trainer:
         first = dqn.input_size(*self.network_input)
         sizes = (first, *c.hidden_sizes, self.env.num_actions + 1)
         weights = sum((a + 1) * b for a, b in zip(sizes[:-1], sizes[1:], strict=False))
+        weights += 3 * (c.hidden_sizes[-1] + c.memory + 2) * c.memory  # the GRU cell's
         obs_bytes = self.obs_size * jnp.dtype(self.env.observation_space().dtype).itemsize
         rows = c.algorithm.kept_rows(c)
-        replay = rows * c.num_envs * (2 * obs_bytes + 4 * 4)
+        replay = rows * c.num_envs * (2 * obs_bytes + 4 * 4 + 4 * c.memory)
         # the host keeps every interval's metrics, [seeds, logs] per name (4-byte values),
         # and a copy of them while a checkpoint is written
         metrics = c.num_seeds * c.num_logs * len(METRIC_NAMES) * 4 * 2
@@ -248,6 +250,7 @@ class Trainer:
             hparams=hp,
             diverged=jnp.zeros((), jnp.int32),
             diverged_at=jnp.zeros((), jnp.int32),
+            memory=self.network.initial_memory(c.num_envs),
         )
 
     def epsilon(self, hp: HParams, env_steps: jax.Array) -> jax.Array:
@@ -298,15 +301,19 @@ class Trainer:
         after the rollout, once an iteration)."""
         c = self.config
         k_act, k_eps, k_step = keys
-        q = self.learner_network.apply(acting_params, ts.obs)
+        if self.network.memory:
+            q, hidden = self.learner_network.apply(acting_params, ts.obs, ts.memory)
+        else:
+            q, hidden = self.learner_network.apply(acting_params, ts.obs), None
         action = self.algorithm.choose_actions(q, (k_act, k_eps), eps)
         obs, env_state, reward, terminated, truncated, info = jax.vmap(
             self.env.step, in_axes=(0, 0, 0, None)
         )(jax.random.split(k_step, c.num_envs), ts.env_state, action, self.env_params)
         done = terminated | truncated
         transitions = Transitions(
-            ts.obs, action, reward, info["final_observation"], terminated, done, q.max(axis=-1)
-        )
+            ts.obs, action, reward, info["final_observation"], terminated, done, q.max(axis=-1),
+            ts.memory,
+        )  # fmt: skip
         ep_return = ts.episode_return + reward
         ep_length = ts.episode_length + 1
         # per env, not summed here: a sum over envs each step was a reduction into which XLA
@@ -324,6 +331,7 @@ class Trainer:
             obs=obs,
             episode_return=jnp.where(done, 0.0, ep_return),
             episode_length=jnp.where(done, 0, ep_length),
+            memory=None if hidden is None else dqn.reset_memory(hidden, done),
         )
         return ts, (transitions, jnp.isfinite(q).all(), stats)
 
@@ -412,23 +420,25 @@ class Trainer:
         algo_specs = self.algorithm.state_specs(state.algo_state, P(SEEDS))
         return sharding.state_specs(state, algo_specs)
 
-    def legacy_checkpoint_layout(
+    def legacy_checkpoint_layouts(
         self, state_like: TrainState
-    ) -> tuple[dict[str, Any], Callable[[dict[str, Any]], TrainState]] | None:
-        """``(layout, upgrade)`` for checkpoints saved before the algorithms kept their own
-        state in ``algo_state``: ``layout`` is ``state_like`` as those were saved (a dict of
-        ``TrainState``'s fields with ``LEGACY_ALGO_FIELDS`` in place of ``algo_state``,
-        None where the algorithm has no such field); ``upgrade`` turns a state restored in
-        it into a ``TrainState``. None for an algorithm whose state that layout cannot hold
-        (one added since: none of its checkpoints was saved so)."""
+    ) -> list[tuple[dict[str, Any], Callable[[dict[str, Any]], TrainState]]]:
+        """``(layout, upgrade)`` of each earlier layout a checkpoint of ``state_like`` may have
+        been saved in, newest first: ``layout`` is ``state_like`` as those were saved, and
+        ``upgrade`` turns a state restored in it into a ``TrainState``. A run without memory
+        may have a checkpoint saved before ``TrainState.memory`` (its other fields, a dict),
+        or before the algorithms kept their own state in ``algo_state`` (a dict of the other
+        fields with ``LEGACY_ALGO_FIELDS`` in place of ``algo_state``, None where the
+        algorithm has no such field; not for an algorithm added since, whose state that
+        layout cannot hold). A run with memory has none: memory is newer than both."""
+        if state_like.memory is not None:
+            return []
+        fields = [n for n in state_like.__dataclass_fields__ if n != "memory"]
+        layouts = [({n: getattr(state_like, n) for n in fields}, lambda saved: TrainState(**saved))]
         algo_like = state_like.algo_state
         if not set(getattr(algo_like, "__dataclass_fields__", ())) <= set(LEGACY_ALGO_FIELDS):
-            return None
-        shared = {
-            name: getattr(state_like, name)
-            for name in state_like.__dataclass_fields__
-            if name != "algo_state"
-        }
+            return layouts
+        shared = {n: getattr(state_like, n) for n in fields if n != "algo_state"}
         layout = {**shared, **{n: getattr(algo_like, n, None) for n in LEGACY_ALGO_FIELDS}}
 
         def upgrade(saved: dict[str, Any]) -> TrainState:
@@ -436,7 +446,7 @@ class Trainer:
             algo_state = algo_like and algo_like.replace(**{n: saved[n] for n in kept})
             return TrainState(**{n: saved[n] for n in shared}, algo_state=algo_state)
 
-        return layout, upgrade
+        return [*layouts, (layout, upgrade)]
 
     def sharded(self, keys: jax.Array) -> tuple[Callable, Callable, Any]:
         """``(init, interval, state_like)`` for the seeds of ``keys`` on ``self.mesh``:
@@ -477,8 +487,19 @@ class Trainer:
         )
         return init, interval, state_like
 
-    def greedy_policy(self, params) -> Callable[[jax.Array, jax.Array], jax.Array]:
-        return lambda key, obs: jnp.argmax(self.network.apply(params, obs), axis=-1)
+    def greedy_policy(self, params: Any) -> Callable[[jax.Array, jax.Array], jax.Array] | Any:
+        """The greedy policy of ``params``: ``(key, obs) -> action``, or with memory a
+        ``dqn.RecurrentPolicy`` whose state is the hidden state (zeros at an episode's start).
+        """
+        net = self.network
+        if not net.memory:
+            return lambda key, obs: jnp.argmax(net.apply(params, obs), axis=-1)
+
+        def step(hidden: jax.Array, key: jax.Array, obs: jax.Array) -> tuple:
+            q, hidden = net.apply(params, obs, hidden)
+            return hidden, jnp.argmax(q, axis=-1)
+
+        return dqn.RecurrentPolicy(net.initial_memory, step)
 
 
 def device_memory_limit() -> int | None:

@@ -66,6 +66,8 @@ HELP = {
     "fused_layer_norm": "LayerNorm and ReLU as one op with a float32 gradient: Pallas kernels "
     "on a GPU (on each device's rows over several), jnp on a CPU",
     "compute_dtype": "float32 or bfloat16 matrix products in the hidden layers",
+    "memory": "units of a GRU cell between the MLP and the heads, its hidden state carried "
+    "through each episode and reset at its start (0: no memory); pqn and ppo",
     "rollout_length": "pqn, ppo: env steps of every env per iteration",
     "num_epochs": "pqn, ppo: passes over each rollout",
     "num_minibatches": "pqn, ppo: gradient steps per pass over a rollout",
