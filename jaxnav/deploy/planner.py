@@ -279,6 +279,8 @@ class Planner:
         """The map-frame point about ``waypoint_distance`` ahead of the robot at (x, y) on a
         shortest passable path to the goal: a cell's centre, or the goal once the path reaches
         its cell; ``ValueError`` where the robot has no path to the goal."""
+        if self.map.cell_of(x, y) is None:
+            raise ValueError(f"pose=({x:g}, {y:g}): off the map")
         start = self.start_cell(x, y)
         if start is None:
             raise ValueError(
