@@ -31,8 +31,10 @@ Policies trained with ``obs_absolute`` (the paper's layout) also read the goal a
 in the maze's frame (origin at its lower-left corner, metres, divided by the arena's size):
 give pose and goal in that frame. Policies with a waypoint (metadata ``waypoint_distance_m``;
 RobotNav-v0's: 1 m) read a point about that far ahead on a shortest path to the goal: a planner
-on the robot's map provides it (e.g. the point of ROS nav2's global plan that distance ahead,
-or the goal itself when closer), given as ``waypoint=(x, y)`` in the pose's frame.
+on the robot's map provides it (``jaxnav.deploy.planner``, the simulator's own, as
+``jaxnav.deploy.navigator.Navigator`` runs it; or the point of ROS nav2's global plan that
+distance ahead, or the goal itself when closer), given as ``waypoint=(x, y)`` in the pose's
+frame.
 """
 
 from __future__ import annotations
