@@ -202,3 +202,16 @@ def test_a_radius_range_plans_for_the_largest_robot_each_maze_draws():
     fit = np.asarray(params.bank.fit_radius)
     np.testing.assert_allclose(env.plan_radius, np.minimum(0.24, fit))
     assert env.plan_radius.max() == pytest.approx(0.24)  # mazes of 1 m corridors draw the top
+
+
+def test_a_bank_refuses_a_plan_that_blocks_its_placement_cells():
+    """Every start and goal must be a cell the robot stands on: a planner's grid that blocks
+    one of them is refused, naming the maze (the env's robot, narrower than a cell, never is)."""
+    from jaxnav.envs.robot.mazes import builtin_maze, stack_mazes
+
+    maze = builtin_maze("simple")
+    plan = np.asarray(maze.grid).copy()
+    stack_mazes([maze], 24, plan_grids=plan[None])  # the free cells: accepted
+    plan[0, 0] = True
+    with pytest.raises(ValueError, match=r"^simple: the planner blocks placement cells"):
+        stack_mazes([maze], 24, plan_grids=plan[None])
