@@ -20,6 +20,7 @@ from jaxnav.deploy.planner import GridMap
 from jaxnav.deploy.policy import Policy
 from jaxnav.deploy.sensors import LaserScan
 from jaxnav.envs.robot import geometry
+from jaxnav.envs.robot.occupancy import load_grid_map
 from jaxnav.export import env_for
 
 ROOMS = "examples/mazes/rooms_doors.txt"
@@ -100,7 +101,7 @@ def test_the_navigator_reaches_goals_as_often_as_the_envs_evaluation_with_a_map(
     """robotnav-pqn (a waypoint policy) on the six-room maze: the Navigator plans on the maze
     file itself (radius 0.15 m, 0.05 m margin) and reads the robot's lidar and noisy pose."""
     sim = simulator("robotnav-pqn", "RobotMaze-v0", maze_file=ROOMS, num_wall_slots=40)
-    nav = Navigator(sim[0], map=ROOMS)
+    nav = Navigator(sim[0], map=load_grid_map(ROOMS))
     keys = jax.random.split(jax.random.key(7), EPISODES)
     own = [episode(sim, k) for k in keys]
     driven = [episode(sim, k, nav, seed=i) for i, k in enumerate(keys)]
@@ -134,7 +135,7 @@ def test_on_an_occupancy_map_the_navigator_plans_the_envs_waypoints_in_the_maps_
     policy, env, params, reset, step, _ = sim
     origin = np.asarray(env.layout_origins[0])
     assert origin.tolist() == [-6.0, -4.0]
-    nav = Navigator(policy, map=FLOOR)
+    nav = Navigator(policy, map=load_grid_map(FLOOR))
     beams = jnp.asarray(policy.metadata["sensors"]["beam_angles_rad"])
     waypoint, lasers = jax.jit(env.waypoint), jax.jit(env.lasers)
     steps = planned = 0
@@ -204,6 +205,8 @@ def test_bad_inputs_are_named_in_one_line(nav):
     assert nav.act(scan=full_scan(), pose=(11.0, 1.0, 0.0)) in range(4)
     with pytest.raises(ValueError, match=r"^this policy reads a waypoint on a planned path: pass"):
         Navigator(pretrained.path("robotnav-pqn"))
+    with pytest.raises(ValueError, match=r"^map='rooms.txt': must be a GridMap or None"):
+        Navigator(pretrained.path("robotnav-pqn"), map="rooms.txt")
     with pytest.raises(ValueError, match=r"^radius=-0.1: must be a positive number"):
         Navigator(pretrained.path("robotnav-pqn"), map=nav.map, radius=-0.1)
 

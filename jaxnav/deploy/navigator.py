@@ -23,10 +23,10 @@ Frames: pose and goal are in the map's frame (a ROS map's, e.g. ``map``); the po
 simulator's, whose origin is the map's lower-left corner (``GridMap.origin``). Map-free
 policies take any fixed frame and no map (one given is used to check the goal).
 
-Maps: a ``planner.GridMap`` (numpy only; ``GridMap.from_occupancy_grid`` reads a ROS
-``nav_msgs/OccupancyGrid``), or a path to a text maze or a map_server YAML, read by the
-simulator's own loader (``jaxnav.envs.robot.occupancy.load_layout``, imported on first use:
-it needs JAX, Pillow and PyYAML).
+Maps: a ``planner.GridMap``, numpy only: ``GridMap.from_occupancy_grid`` reads a ROS
+``nav_msgs/OccupancyGrid`` (map_server's ``/map``). A text maze or a map_server YAML file is
+read as the simulator reads it by ``jaxnav.envs.robot.occupancy.load_grid_map`` (that needs
+the simulator's install: JAX, Pillow and PyYAML).
 """
 
 from __future__ import annotations
@@ -39,15 +39,6 @@ from jaxnav.deploy.policy import Policy
 from jaxnav.deploy.sensors import LaserScan, ScanObservation, check_finite
 
 
-def load_map(path: str | os.PathLike[str], cell_size: float | None = None) -> GridMap:
-    """The map of a text maze or map_server YAML file as the simulator reads it (``cell_size``:
-    an occupancy map's cell, None for the simulator's default); needs the simulator's install."""
-    from jaxnav.envs.robot.occupancy import load_layout  # JAX, Pillow, PyYAML: on first use
-
-    maze = load_layout(os.fspath(path), cell_size, False)
-    return GridMap(maze.grid, maze.cell_size, maze.origin)
-
-
 class Navigator:
     """An exported policy driving a robot to goals; the module docstring says how."""
 
@@ -55,18 +46,17 @@ class Navigator:
         self,
         policy: str | os.PathLike[str] | Policy,
         *,
-        map: GridMap | str | os.PathLike[str] | None = None,  # noqa: A002 - the issue's word
+        map: GridMap | None = None,
         radius: float | None = None,
         margin: float = DEFAULT_MARGIN,
-        map_cell_size: float | None = None,
         mount_yaw: float = 0.0,
         beam_width: float = 0.0,
         fill_uncovered: float | None = None,
     ):
-        """``policy``: an npz file or a loaded ``Policy``; ``map``: a ``GridMap`` or a map file
-        (``map_cell_size`` for an occupancy map's); ``radius``: the robot's, metres (None: the
-        one the policy was trained with); ``margin``: metres more the planned path keeps from
-        walls; ``mount_yaw``, ``beam_width``, ``fill_uncovered``: as ``ScanObservation``'s."""
+        """``policy``: an npz file or a loaded ``Policy``; ``map``: a ``GridMap`` (None for a
+        map-free policy); ``radius``: the robot's, metres (None: the one the policy was trained
+        with); ``margin``: metres more the planned path keeps from walls; ``mount_yaw``,
+        ``beam_width``, ``fill_uncovered``: as ``ScanObservation``'s."""
         self.policy = policy if isinstance(policy, Policy) else Policy.load(policy)
         meta = self.policy.metadata
         sensors = meta.get("sensors")
@@ -82,17 +72,18 @@ class Navigator:
         self.observe = ScanObservation(
             meta, mount_yaw, beam_width, fill_uncovered, radius=self.radius
         )
-        if isinstance(map, (str, os.PathLike)):
-            map = load_map(map, map_cell_size)  # noqa: A001
         if map is not None and not isinstance(map, GridMap):
-            raise ValueError(f"map={map!r}: must be a GridMap, a map file's path or None")
+            raise ValueError(
+                f"map={map!r}: must be a GridMap or None (a map file: "
+                "jaxnav.envs.robot.occupancy.load_grid_map(path))"
+            )
         names = {e["name"] for e in self.observe.frame_entries}
         for needs, what in (
             (self.observe.needs_waypoint, "a waypoint on a planned path"),
             ("robot_x" in names, "positions in the map's frame"),
         ):
             if needs and map is None:
-                raise ValueError(f"this policy reads {what}: pass map=<GridMap or map file>")
+                raise ValueError(f"this policy reads {what}: pass map=<GridMap>")
         self.map = map
         self.planner = None
         if map is not None:
