@@ -82,20 +82,22 @@ def distance_field(passable_cells: np.ndarray, goal: Cell) -> np.ndarray:
     if not (0 <= r < rows and 0 <= c < cols) or not ok[r, c]:
         return out.reshape(rows, cols)
     flat = ok.ravel()
-    start = r * cols + c
-    out[start] = 0
-    queue = collections.deque([start])
-    while queue:
-        i = queue.popleft()
-        d = out[i] + 1
-        row, col = divmod(i, cols)
-        for j, inside in (
-            (i - cols, row > 0), (i + cols, row < rows - 1),
-            (i - 1, col > 0), (i + 1, col < cols - 1),
-        ):  # fmt: skip
-            if inside and flat[j] and out[j] < 0:
-                out[j] = d
-                queue.append(j)
+    frontier = np.array([r * cols + c])
+    out[frontier] = 0
+    distance = 0
+    while frontier.size:  # one BFS level at a time, as arrays: fast on a fine map too
+        distance += 1
+        row, col = np.divmod(frontier, cols)
+        step = np.concatenate(
+            [
+                frontier[row > 0] - cols,
+                frontier[row < rows - 1] + cols,
+                frontier[col > 0] - 1,
+                frontier[col < cols - 1] + 1,
+            ]
+        )
+        frontier = np.unique(step[flat[step] & (out[step] < 0)])
+        out[frontier] = distance
     return out.reshape(rows, cols)
 
 
@@ -254,7 +256,8 @@ class Planner:
 
     def start_cell(self, x: float, y: float) -> Cell | None:
         """The cell the robot at (x, y) plans from: its own, or where that has no path, the
-        nearest (in 4-neighbour moves through free cells) that has one; None if none does."""
+        nearest (in 4-neighbour moves through free cells, no more than the clearance's cells
+        and one) that has one; None if none does."""
         if self.steps is None:
             raise ValueError("no goal: call set_goal(goal) first")
         cell = self.map.cell_of(x, y)
@@ -263,16 +266,20 @@ class Planner:
         if self.steps[cell] >= 0:
             return cell
         free, rows, cols = ~self.map.grid, self.map.rows, self.map.cols
-        seen, queue = {cell}, collections.deque([cell])
+        # a robot within the margin of a wall is a few cells from passable space; farther
+        # off, it is cut off from the goal, and the search need not cover its whole region
+        depth = math.ceil((self.radius + self.margin) / self.map.cell_size) + 1
+        seen, queue = {cell}, collections.deque([(cell, 0)])
         while queue:
-            r, c = queue.popleft()
+            (r, c), d = queue.popleft()
             for dr, dc in MOVES[:4]:
                 n = (r + dr, c + dc)
                 if 0 <= n[0] < rows and 0 <= n[1] < cols and free[n] and n not in seen:
                     if self.steps[n] >= 0:
                         return n
                     seen.add(n)
-                    queue.append(n)
+                    if d + 1 < depth:
+                        queue.append((n, d + 1))
         return None
 
     def waypoint(self, x: float, y: float) -> tuple[float, float]:
