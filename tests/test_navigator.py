@@ -92,7 +92,7 @@ def success(outcomes: list[str]) -> float:
 
 
 # the closed loop: the same episodes (starts, goals, robot sizes) both ways; the tolerance is
-# about 3 standard errors of a difference of two success rates near 0.95 over 40 episodes
+# about two standard errors of a difference of two success rates near 0.95 over 40 episodes
 EPISODES, TOLERANCE = 40, 0.1
 
 
