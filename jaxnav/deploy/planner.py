@@ -1,8 +1,9 @@
 """A waypoint planner that knows the robot's size, with numpy and the standard library alone.
 
-The robot env's planner (``RobotNav.waypoint``) and a robot's deployment loop
-(``jaxnav.deploy.navigator``) plan with the functions here, so a policy sees the same waypoint
-on the same grid in the simulator and on the robot:
+A robot's deployment loop (``jaxnav.deploy.navigator``) plans with the functions here, and the
+robot env builds its BFS tables on ``passable``'s cells and descends them in JAX as ``descend``
+does (``RobotNav.waypoint``; tests/test_planner.py compares the two), so a policy sees the same
+waypoint on the same grid in the simulator and on the robot:
 
 1. ``passable(grid, cell_size, clearance)``: the free cells whose centre is at least
    ``clearance`` metres (the robot's radius plus a margin, as Nav2's inflation layer makes
