@@ -4,16 +4,17 @@
     python examples/drive_from_scans.py policy.npz --episodes 3 --scan-beams 360
 
 1. ``record``: plays episodes in the simulator (JAX), the trained network acting on the env's
-   own observations, and logs what a robot would publish each control step: a 360-degree
-   lidar scan of ``--scan-beams`` readings (cast by the simulator's ray caster, +inf where
-   nothing is within the scanner's ``range_max``), the pose, the goal and the planner's
-   waypoint, with the simulator's action, to an npz scan log.
+   own observations, and logs what a robot would have each control step: a 360-degree lidar
+   scan of ``--scan-beams`` readings (cast by the simulator's ray caster, +inf where nothing
+   is within the scanner's ``range_max``), the pose, the goal, the robot's radius and the
+   maze's map, with the simulator's action and waypoint, to an npz scan log.
 2. ``drive``: reads the log with numpy alone (``jaxnav.deploy``, no JAX) and runs the robot's
-   loop: scan, pose, goal -> observation (``ScanObservation``, frames stacked, reset at each
-   episode's start) -> ``policy.act`` -> the action's speeds; prints each action beside the
-   simulator's and how often they agree. With ``--scan-beams`` a multiple of the policy's
-   beams (and ``--angle-min`` on one), the scan holds the policy's exact beam directions and
-   every action agrees; other resolutions read the nearest reading, a fraction of a degree off.
+   loop in one object, ``Navigator``: map, goal (``reset`` at each episode's start), then scan
+   and pose -> its own planner's waypoint, the observation (frames stacked) -> the action;
+   prints each action beside the simulator's and how often actions and waypoints agree. With
+   ``--scan-beams`` a multiple of the policy's beams (and ``--angle-min`` on one), the scan
+   holds the policy's exact beam directions and every action agrees; other resolutions read
+   the nearest reading, a fraction of a degree off.
 """
 
 from __future__ import annotations
@@ -25,8 +26,10 @@ from pathlib import Path
 
 import numpy as np
 
+from jaxnav.deploy.navigator import Navigator
+from jaxnav.deploy.planner import GridMap
 from jaxnav.deploy.policy import Policy
-from jaxnav.deploy.sensors import LaserScan, ScanObservation
+from jaxnav.deploy.sensors import LaserScan
 
 
 def record(
@@ -76,7 +79,8 @@ def record(
         return action, ranges, waypoint
 
     reset, step = jax.jit(env.reset), jax.jit(env.step_env)
-    rows: dict[str, list] = {k: [] for k in ("ranges", "pose", "goal", "waypoint", "start")}
+    names = ("ranges", "pose", "goal", "waypoint", "start", "layout", "radius")
+    rows: dict[str, list] = {k: [] for k in names}
     rows["sim_action"], outcomes = [], []
     for e in range(episodes):
         key = jax.random.key(seed + e)
@@ -86,6 +90,8 @@ def record(
             for name, value in (
                 ("ranges", ranges), ("pose", state.pose), ("goal", state.goal),
                 ("waypoint", waypoint), ("start", t == 0), ("sim_action", action),
+                ("layout", state.layout),
+                ("radius", env.config.radius if state.radius is None else state.radius),
             ):  # fmt: skip
                 rows[name].append(np.asarray(value))
             key, k_step = jax.random.split(key)
@@ -101,6 +107,9 @@ def record(
         angle_min=angle_min,
         angle_increment=increment,
         range_max=range_max,
+        grids=np.asarray(params.bank.grid),  # the maps: every maze of the bank
+        cell_size=params.bank.cell_size,
+        origins=np.asarray(env.layout_origins, np.float64),
     )
     steps = len(rows["start"])
     print(
@@ -113,37 +122,44 @@ def drive(policy_path: Path, log: Path, quiet: bool = False) -> float:
     """The robot's loop over the scan log with numpy alone; returns the fraction of steps
     whose action is the simulator's."""
     policy = Policy.load(policy_path)
-    observe = ScanObservation(policy.metadata)
-    actions = policy.metadata["actions"]
     period = policy.metadata["sensors"]["control_period_s"]
     with np.load(log) as f:
         data = {k: f[k] for k in f.files}
-    agree, steps = 0, len(data["start"])
+    agree = same_waypoint = 0
+    steps = len(data["start"])
     episode = np.cumsum(data["start"]) - 1
     for t in range(steps):
-        if data["start"][t]:
-            observe.reset()
+        layout = int(data["layout"][t])
+        origin = data["origins"][layout]
+        if data["start"][t]:  # a new maze, robot and goal; the map frame is env + origin
+            grid_map = GridMap(data["grids"][layout], float(data["cell_size"]), tuple(origin))
+            nav = Navigator(policy, map=grid_map, radius=float(data["radius"][t]))
+            nav.reset(goal=data["goal"][t] + origin)
         scan = LaserScan(
             ranges=data["ranges"][t],
             angle_min=float(data["angle_min"]),
             angle_increment=float(data["angle_increment"]),
             range_max=float(data["range_max"]),
         )
-        obs = observe(scan, data["pose"][t], data["goal"][t], waypoint=data["waypoint"][t])
-        action = policy.act(obs)
+        pose = data["pose"][t] + [*origin, 0.0]
+        action = nav.act(scan=scan, pose=pose)
         sim = int(data["sim_action"][t])
         agree += action == sim
+        if nav.waypoint is not None:
+            same_waypoint += np.allclose(nav.waypoint, data["waypoint"][t] + origin, atol=1e-4)
         if not quiet:
-            a = actions[action]
-            differs = "" if action == sim else f"   simulator: {actions[sim]['name']}"
+            name = policy.action_names[action]
+            v, omega = nav.speeds(action)
+            differs = "" if action == sim else f"   simulator: {policy.action_names[sim]}"
             print(
-                f"episode {episode[t]} step {t:4d}: {a['name']:<10} (v {a['v_mps']:+.2f} m/s, "
-                f"omega {a['omega_radps']:+.2f} rad/s){differs}"
+                f"episode {episode[t]} step {t:4d}: {name:<10} (v {v:+.2f} m/s, "
+                f"omega {omega:+.2f} rad/s){differs}"
             )
+    planned = f"; {same_waypoint}/{steps} waypoints the simulator's" if nav.waypoint else ""
     print(
         f"{steps} control steps ({steps * period:.1f} s) of {episode[-1] + 1} episodes driven "
         "from the log: "
-        f"{agree}/{steps} actions ({agree / steps:.1%}) the simulator's"
+        f"{agree}/{steps} actions ({agree / steps:.1%}) the simulator's{planned}"
     )
     return agree / steps
 

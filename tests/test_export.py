@@ -236,6 +236,8 @@ def test_deploy_modules_run_without_jax(exported):
         "import sys, numpy as np\n"
         "from jaxnav.deploy.policy import Policy\n"
         "import jaxnav.deploy.sensors\n"
+        "import jaxnav.deploy.navigator\n"
+        "import jaxnav.deploy.planner\n"
         f"p = Policy.load({str(npz)!r})\n"
         f"print(' '.join(map(str, p.act(np.load({str(npz.with_name('obs.npy'))!r})))))\n"
         "bad = sorted(m for m in sys.modules if m.split('.')[0] in ('jax', 'jaxlib', 'flax'))\n"

@@ -144,7 +144,9 @@ def test_a_scan_is_built_by_ros_field_names_only():
     """Positional ranges could swap range_min and range_max (a wall 0.3 m away then reads as
     free space): construction takes keywords, in ROS's field order, or a ROS message."""
     fields = [f.name for f in dataclasses.fields(LaserScan)]
-    assert fields == ["angle_min", "angle_increment", "range_min", "range_max", "ranges"]
+    assert fields == [
+        "angle_min", "angle_max", "angle_increment", "range_min", "range_max", "ranges"
+    ]  # fmt: skip
     with pytest.raises(TypeError):
         LaserScan(0.0, math.pi / 4, 0.1, 8.0, [0.3] * 8)  # the mistake, refused
     msg = types.SimpleNamespace(
@@ -153,8 +155,13 @@ def test_a_scan_is_built_by_ros_field_names_only():
         intensities=[],
     )  # fmt: skip
     scan = LaserScan.from_msg(msg)
-    assert (scan.range_min, scan.range_max) == (0.1, 8.0)
+    assert (scan.range_min, scan.range_max, scan.angle_max) == (0.1, 8.0, 7 * math.pi / 4)
     np.testing.assert_array_equal(resample_scan(scan, [0.0, math.pi]), [0.3, 0.3])
+    # a message whose readings do not fit its angles: a reading lost, or one too many
+    for ranges in ([0.3] * 7, [0.3] * 9):
+        short = LaserScan.from_msg(types.SimpleNamespace(**{**vars(msg), "ranges": ranges}))
+        with pytest.raises(ValueError, match=rf"^ranges: {len(ranges)} readings, but .* make 8$"):
+            resample_scan(short, [0.0])
 
 
 @pytest.mark.parametrize(

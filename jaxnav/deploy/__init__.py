@@ -6,5 +6,10 @@
 - ``jaxnav.deploy.sensors``: a robot's lidar scan, pose and goal (and a planner's waypoint)
   turned into the policy's observation, frames stacked as the simulator stacks them.
 
-Both files need only numpy and the standard library: copy them beside the npz onto a robot.
+- ``jaxnav.deploy.planner``: waypoints on a map for a robot of a given radius (walls inflated
+  by it plus a margin), the simulator's own planner.
+- ``jaxnav.deploy.navigator``: ``Navigator``, the whole loop in one object: policy file, map,
+  pose, scan and goal in, action out.
+
+They need only numpy and the standard library: copy them beside the npz onto a robot.
 """

@@ -31,8 +31,10 @@ Policies trained with ``obs_absolute`` (the paper's layout) also read the goal a
 in the maze's frame (origin at its lower-left corner, metres, divided by the arena's size):
 give pose and goal in that frame. Policies with a waypoint (metadata ``waypoint_distance_m``;
 RobotNav-v0's: 1 m) read a point about that far ahead on a shortest path to the goal: a planner
-on the robot's map provides it (e.g. the point of ROS nav2's global plan that distance ahead,
-or the goal itself when closer), given as ``waypoint=(x, y)`` in the pose's frame.
+on the robot's map provides it (``jaxnav.deploy.planner``, the simulator's own, as
+``jaxnav.deploy.navigator.Navigator`` runs it; or the point of ROS nav2's global plan that
+distance ahead, or the goal itself when closer), given as ``waypoint=(x, y)`` in the pose's
+frame.
 """
 
 from __future__ import annotations
@@ -51,9 +53,11 @@ class LaserScan:
     ``angle_min + i * angle_increment`` (radians; a negative increment sweeps clockwise).
     Keywords only, the fields named and ordered as ROS's (two ranges passed the other way
     round would read every obstacle as free space); ``LaserScan.from_msg(msg)`` copies a
-    message's."""
+    message's. ``angle_max`` (the last reading's angle; None: not checked) must agree with the
+    readings' count: a scan of another size than its angles is refused."""
 
     angle_min: float
+    angle_max: float | None = None
     angle_increment: float
     range_min: float = 0.0
     range_max: float
@@ -64,6 +68,7 @@ class LaserScan:
         """The scan of a ROS ``sensor_msgs/LaserScan`` message (or anything with its fields)."""
         return cls(
             angle_min=msg.angle_min,
+            angle_max=getattr(msg, "angle_max", None),
             angle_increment=msg.angle_increment,
             range_min=msg.range_min,
             range_max=msg.range_max,
@@ -109,6 +114,29 @@ def check_scan(scan: LaserScan) -> None:
         raise ValueError(f"range_max={high!r}: must be above range_min={low!r}")
 
 
+def check_scan_size(scan: LaserScan, size: int) -> None:
+    """``ValueError`` (one line) for ``size`` readings that do not fit the scan's angles: more
+    than a full turn of them (a reading at both -pi and pi is allowed), or a last reading's
+    angle other than ``angle_max`` (by more than half an increment) where it is given."""
+    step = abs(float(scan.angle_increment))
+    span = (size - 1) * step
+    if span > 2 * math.pi + step / 2:
+        raise ValueError(
+            f"ranges: {size} readings every {math.degrees(step):.4g} deg span "
+            f"{math.degrees(span):.1f} deg, more than a full turn"
+        )
+    if scan.angle_max is not None:
+        (angle_max,) = check_finite("angle_max", scan.angle_max, 1)
+        last = float(scan.angle_min) + (size - 1) * float(scan.angle_increment)
+        if abs(last - angle_max) > step / 2 + 1e-9:
+            want = round((angle_max - float(scan.angle_min)) / float(scan.angle_increment)) + 1
+            raise ValueError(
+                f"ranges: {size} readings, but angle_min={float(scan.angle_min):g}, "
+                f"angle_max={angle_max:g} and angle_increment={float(scan.angle_increment):g} "
+                f"make {want}"
+            )
+
+
 def yaw_from_quaternion(x: float, y: float, z: float, w: float) -> float:
     """The yaw (rotation about z, radians) of an orientation quaternion, as ROS odometry
     (``nav_msgs/Odometry``'s ``pose.pose.orientation``) gives it."""
@@ -149,6 +177,7 @@ def resample_scan(
         raise ValueError("ranges: must be numbers") from None
     if ranges.size == 0:
         raise ValueError("ranges: the scan has no readings")
+    check_scan_size(scan, ranges.size)
     reading = np.where(np.isneginf(ranges), 0.0, ranges)  # REP 117: -inf is "too close"
     valid = np.isfinite(reading) & (reading >= scan.range_min) & (reading <= scan.range_max)
     reading = np.where(np.isneginf(ranges) | valid, reading, np.inf)

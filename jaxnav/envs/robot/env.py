@@ -58,6 +58,17 @@ PGM/PNG image become a maze of ``map_cell_size`` cells (``occupancy``); ``maze_f
 list, a folder or a glob of maze files as one bank. Env coordinates are the map's minus its
 origin (``RobotNav.layout_origins``, ``Maze.to_env``): the grid's lower-left corner is (0, 0).
 
+Planner (the waypoint, and the progress reward's geodesic distance): BFS tables per maze and
+goal cell (``mazes.stack_mazes``) through the cells that ``jaxnav.deploy.planner.passable``
+leaves a robot of the largest radius an episode can have on that maze (``radius``, or the top
+of ``radius_range`` capped at the maze's ``fit_radius``): one table serves every radius drawn
+there, and a smaller robot gets a path the largest passes. The waypoint descends the tables
+as ``planner.descend`` does, the deployment loop's planner (``jaxnav.deploy.navigator``). No
+margin is added here: ``validate`` keeps the robot narrower than a cell, so every free cell's
+centre is half a cell or more from walls and the tables are those of the free cells; a drawn
+radius already keeps ``FIT_MARGIN`` at each maze's narrowest gap, and a margin measured at
+cell centres would close 2-cell corridors that the robot passes with room to spare.
+
 JaxNav's levels (``RobotJaxNav-v0``, ``maze="jaxnav"``): the single-robot benchmark of
 JaxMARL's JaxNav as SFL evaluates it, 9 x 9 interiors of 1 m cells with up to 47 random
 obstacles (``jaxnav_levels.py``), with the map-free sensors (``MAPFREE_SENSORS``: the
@@ -101,6 +112,7 @@ import numpy as np
 from flax import struct
 
 from jaxnav import spaces
+from jaxnav.deploy import planner
 from jaxnav.environment import Environment, EnvParams, EnvState, is_concrete
 from jaxnav.envs.maze_algorithms import (
     FLOAT32_MAX,
@@ -534,10 +546,6 @@ MAPFREE_SENSORS: dict[str, Any] = {
 }
 
 
-# a waypoint's moves (row, column): up, down, left, right, then the diagonals
-_WAYPOINT_MOVES = ((-1, 0), (1, 0), (0, -1), (0, 1), (-1, -1), (-1, 1), (1, -1), (1, 1))
-
-
 def _bearing(offset: jax.Array, heading: jax.Array) -> jax.Array:
     """(sin, cos) of the direction of ``offset`` (x, y) relative to ``heading``."""
     angle = jnp.arctan2(offset[1], offset[0]) - heading
@@ -597,16 +605,27 @@ class RobotNav(Environment[RobotState, RobotParams]):
         self.layout_names = tuple(m.name for m in maze_list)
         self.layout_origins = tuple(m.origin for m in maze_list)
         c = self.config
-        self._bank = mazes.stack_mazes(maze_list, self.num_wall_slots, c.num_goal_cells or None)
+        cell_size = maze_list[0].cell_size
         # the largest radius that passes each maze's narrowest gap with FIT_MARGIN to spare
         gaps = np.array([narrowest_gap(m.grid) for m in maze_list], np.float32)
-        fit = np.maximum(gaps * self._bank.cell_size / 2 - FIT_MARGIN, 0.0)
+        fit = np.maximum(gaps * cell_size / 2 - FIT_MARGIN, 0.0)
+        # the planner's tables are for the largest robot an episode can have on each maze
+        # (module docstring, "Planner")
+        largest = c.radius if c.radius_range is None else np.minimum(max(c.radius_range), fit)
+        self.plan_radius = np.broadcast_to(np.asarray(largest, np.float64), fit.shape)
+        plan_grids = np.stack(
+            [
+                ~planner.passable(m.grid, cell_size, float(r))
+                for m, r in zip(maze_list, self.plan_radius, strict=True)
+            ]
+        )
+        self._bank = mazes.stack_mazes(
+            maze_list, self.num_wall_slots, c.num_goal_cells or None, plan_grids=plan_grids
+        )
         self._bank = self._bank.replace(fit_radius=jnp.asarray(fit, jnp.float32))
         self.arena = np.asarray(self._bank.size_m, np.float32)
         # the waypoint's lookahead in whole cells of this maze (0: none)
-        self.waypoint_steps = (
-            max(1, round(c.waypoint_distance / self._bank.cell_size)) if c.waypoint_distance else 0
-        )
+        self.waypoint_steps = planner.waypoint_steps(c.waypoint_distance, cell_size)
         self.angles = c.laser_angles
         # enough sub-steps that one moves less than the thinnest wall's half size
         thinnest = self._bank.walls.min_half_size()
@@ -967,7 +986,8 @@ class RobotNav(Environment[RobotState, RobotParams]):
         """The point ``waypoint_steps`` moves ahead of the robot's cell on a shortest path to
         the goal (descending the 4-neighbour BFS distances by ``waypoint_moves`` moves, each to
         the lowest neighbour, straight moves first among equals): a cell centre, or the goal
-        itself once the path reaches the goal's cell or where no path is known."""
+        itself once the path reaches the goal's cell or where no path is known. The same
+        descent as ``jaxnav.deploy.planner.waypoint_cell`` on the same table, in JAX."""
         bank = params.bank
         rows = bank.grid.shape[1]
         steps = self._steps_to_goal(goal, layout, bank)
@@ -976,7 +996,7 @@ class RobotNav(Environment[RobotState, RobotParams]):
         padded = jnp.pad(known, 1, constant_values=far)
         start = row, col = self._cell(pose[:2], bank)
         # the padding stands for the arena's outside
-        moves = _WAYPOINT_MOVES[: self.config.waypoint_moves]
+        moves = planner.MOVES[: self.config.waypoint_moves]
         for _ in range(self.waypoint_steps):  # a few static steps
             # to the lowest neighbour below the cell, the first of equals: a chain of selects,
             # not an argmin, so that XLA fuses the moves into fewer GPU kernels (on a CPU too

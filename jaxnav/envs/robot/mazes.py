@@ -720,10 +720,20 @@ def stack_walls(mazes: Sequence[Maze], num_slots: int) -> Walls:
     )
 
 
-def stack_mazes(mazes: Sequence[Maze], num_slots: int, num_goals: int | None = None) -> MazeBank:
+def stack_mazes(
+    mazes: Sequence[Maze],
+    num_slots: int,
+    num_goals: int | None = None,
+    plan_grids: np.ndarray | None = None,
+) -> MazeBank:
     """A ``MazeBank`` of mazes that share rows, cols and cell size: walls, placement-cell
     centres padded to the bank's largest count (with the maze's first cell, so any index
     below the padded size is a valid cell) and the S/G cells.
+
+    ``plan_grids`` (bool[B, rows, cols], True = blocked; None: the mazes' grids): the cells the
+    geodesic tables route around, the walls and the free cells a robot's centre cannot stand
+    on (``jaxnav.deploy.planner.passable``). A ``ValueError`` names a maze whose placement
+    cells it blocks: every start and goal must be a cell the robot stands on.
 
     ``num_goals`` None: the geodesic table covers every cell as a goal ([B, rows * cols, rows,
     cols]). ``num_goals=K``: only K goal cells per maze ([B, K, rows, cols], ``goal_index``),
@@ -756,16 +766,23 @@ def stack_mazes(mazes: Sequence[Maze], num_slots: int, num_goals: int | None = N
     start_xy, has_start = mark("start")
     goal_xy, has_goal = mark("goal")
     grids = np.stack([m.grid for m in mazes])
+    if plan_grids is None:
+        plan_grids = grids
+    for m, p, blocked in zip(mazes, placement, plan_grids, strict=True):
+        if blocked[p[:, 0], p[:, 1]].any():
+            raise ValueError(
+                f"{m.name}: the planner blocks placement cells (too large a robot for them)"
+            )
     goal_index = goal_source = None
     if num_goals is None:
-        goal_distance = _all_pairs_distances(grids)
+        goal_distance = _all_pairs_distances(plan_grids)
     else:
         check_int("num_goals", num_goals, 1)
         goal_index = np.stack(
             [_goal_choice(m.grid, len(p), num_goals) for m, p in zip(mazes, placement, strict=True)]
         )
         sources = np.take_along_axis(cells, goal_index[..., None], axis=1)  # [B, K, 2]
-        goal_distance = bank_distances(jnp.asarray(grids), jnp.asarray(sources))
+        goal_distance = bank_distances(jnp.asarray(plan_grids), jnp.asarray(sources))
         rows, cols = m0.grid.shape
         flat = sources[..., 0] * cols + sources[..., 1]
         goal_source = np.full((len(mazes), rows * cols), -1, np.int32)

@@ -51,6 +51,7 @@ import numpy as np
 import yaml
 from PIL import Image, UnidentifiedImageError
 
+from jaxnav.deploy.planner import GridMap
 from jaxnav.envs.robot.mazes import CELL_SIZE_RANGE, Maze, MazeFileError, load_maze
 
 MODES = ("trinary", "scale", "raw")
@@ -343,6 +344,15 @@ def load_layout(
     if is_map_file(path):
         return load_occupancy_map(path, cell_size, unknown_free)
     return load_maze(path)
+
+
+def load_grid_map(
+    path: str | os.PathLike[str], cell_size: float | None = None, unknown_free: bool = False
+) -> GridMap:
+    """``load_layout``'s maze as the deployment planner's map (``jaxnav.deploy.planner``):
+    the same grid, cell size and map-frame origin the simulator reads from the file."""
+    maze = load_layout(path, cell_size, unknown_free)
+    return GridMap(maze.grid, maze.cell_size, maze.origin)
 
 
 def maze_file_list(spec: str | os.PathLike[str] | Sequence[str | os.PathLike[str]]) -> list[str]:
