@@ -140,7 +140,17 @@ class QNetwork(nn.Module):
         return jax.tree_util.tree_map_with_path(cast, params)
 
     @nn.compact
-    def __call__(self, obs: jax.Array, hidden: jax.Array | None = None) -> Any:
+    def __call__(
+        self, obs: jax.Array, hidden: jax.Array | None = None, done: jax.Array | None = None
+    ) -> Any:
+        """Outputs of ``obs`` [..., D]; with ``memory``, ``(outputs, hidden state after the
+        step)`` from ``hidden`` [..., memory], or, given ``done`` [T, N], of whole sequences
+        ``obs`` [T, N, D] from ``hidden`` [N, memory], the state reset after the steps where
+        ``done`` (``unroll``)."""
+        sequences = done is not None
+        if sequences:  # the MLP over every step at once; only the GRU cell steps through time
+            time_env = obs.shape[:2]
+            obs = obs.reshape(-1, obs.shape[-1])
         if self.onehot_sizes is None:
             x = obs.astype(jnp.float32)  # observations may be stored compactly (int8)
         else:
@@ -167,10 +177,21 @@ class QNetwork(nn.Module):
         x = x.astype(jnp.float32)  # the heads in float32: Q-values are compared and regressed
         if not self.memory:
             return self.heads(x)
-        if hidden is None:  # (``init``) an episode's start
-            hidden = jnp.zeros((*x.shape[:-1], self.memory), jnp.float32)
-        hidden, x = nn.GRUCell(self.memory, name="memory")(hidden, x)
-        return self.heads(x), hidden
+        cell = nn.GRUCell(self.memory, name="memory")
+        if not sequences:
+            if hidden is None:  # (``init``) an episode's start
+                hidden = jnp.zeros((*x.shape[:-1], self.memory), jnp.float32)
+            hidden, x = cell(hidden, x)
+            return self.heads(x), hidden
+
+        def step(cell: nn.GRUCell, h: jax.Array, xs: tuple) -> tuple[jax.Array, tuple]:
+            x_t, done_t = xs
+            after, y = cell(h, x_t)
+            return reset_memory(after, done_t), (y, after)
+
+        scan = nn.scan(step, variable_broadcast="params", split_rngs={"params": False})
+        _, (x, after) = scan(cell, hidden, (x.reshape(*time_env, -1), done))
+        return self.heads(x), after
 
     def heads(self, x: jax.Array) -> jax.Array:
         """The outputs of the last hidden features ``x``: one dense layer, or the dueling
@@ -214,12 +235,7 @@ def unroll(
     [T, N, D] from ``hidden`` [N, H], the state reset (``reset_memory``) after the steps where
     ``done`` [T, N]."""
 
-    def step(h: jax.Array, xs: tuple[jax.Array, jax.Array]) -> tuple[jax.Array, tuple]:
-        o, d = xs
-        out, after = apply_fn(params, o, h)
-        return reset_memory(after, d), (out, after)
-
-    return jax.lax.scan(step, hidden, (obs, done))[1]
+    return apply_fn(params, obs, hidden, done)
 
 
 def sequence_outputs(
