@@ -12,17 +12,20 @@ import json
 import os
 import random
 import shutil
+import signal
 import stat
 import subprocess
 import sys
 from collections.abc import Iterator
 from pathlib import Path
 
+import jax
 import numpy as np
 import pytest
 from conftest import TINY_FLAGS  # pytest puts tests/ on sys.path
 
 from jaxnav import checkpoints, run_dir, runner
+from jaxnav.train import Trainer
 from jaxnav.train.__main__ import main as train_main
 
 TINY = [*TINY_FLAGS, "--total-timesteps", "128", "--eval-episodes", "2", "--checkpoint-every", "32"]
@@ -44,11 +47,17 @@ def tree(path: Path) -> list[Path]:
 
 
 @pytest.fixture(scope="module")
-def reference(tmp_path_factory) -> str:
-    """metrics.csv of the tiny run, uninterrupted."""
+def reference_run(tmp_path_factory) -> Path:
+    """The tiny run, uninterrupted."""
     out = tmp_path_factory.mktemp("ref") / "run"
     assert train_main([*TINY, "--out", str(out)]) == 0
-    return (out / "metrics.csv").read_text()
+    return out
+
+
+@pytest.fixture(scope="module")
+def reference(reference_run) -> str:
+    """metrics.csv of the tiny run, uninterrupted."""
+    return (reference_run / "metrics.csv").read_text()
 
 
 def assert_complete(out: Path, reference: str) -> None:
@@ -147,6 +156,50 @@ def test_kill_at_each_step_of_finishing_then_resume_completes(
     assert_complete(out, reference)
     assert train_main(["--resume", str(out)]) == 2  # complete: nothing to resume
     assert "is complete" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "signum, moment",
+    [
+        (signal.SIGTERM, "write_trained"),
+        (signal.SIGINT, "write_trained"),
+        (signal.SIGTERM, "summary"),
+    ],
+)
+def test_signal_during_the_final_save_exits_128_plus_it_and_resume_is_bitwise(
+    signum, moment, tmp_path, capsys, monkeypatch, reference_run
+):
+    """A signal while params/ or summary.json is being written was ignored until the run
+    finished: it now stops after that step, and --resume completes the same run."""
+    out = tmp_path / "run"
+    target = (run_dir, "write_trained" if moment == "write_trained" else "write_json")
+    original = getattr(*target)
+
+    def signalled_while_saving(path, *args, **kwargs):
+        if moment == "write_trained" or Path(path).name == "summary.json":
+            os.kill(os.getpid(), signum)  # train's handler records it, the save goes on
+        return original(path, *args, **kwargs)
+
+    monkeypatch.setattr(*target, signalled_while_saving)
+    capsys.readouterr()
+    assert train_main([*TINY, "--out", str(out)]) == 128 + signum
+    last = capsys.readouterr().err.strip().splitlines()[-1]
+    name = signal.Signals(signum).name
+    assert last == (
+        f"jaxnav.train: stopped by {name} at env step 128 (checkpoint saved); "
+        f"continue with: python -m jaxnav.train --resume {out}"
+    ), last
+    partial = run_dir.partial_dir(out)
+    assert not out.exists() and (partial / "params").is_dir()
+    assert (partial / "summary.json").exists() == (moment == "summary")
+    monkeypatch.setattr(*target, original)
+    assert train_main(["--resume", str(out)]) == 0
+    capsys.readouterr()
+    assert_complete(out, reference_run.joinpath("metrics.csv").read_text())
+    trainer = Trainer(run_dir.load_config(out))
+    mine, ref = (run_dir.load_trained_params(r, trainer) for r in (out, reference_run))
+    for a, b in zip(jax.tree.leaves(mine), jax.tree.leaves(ref), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
 # ------------------------------------------------------------------ one writer at a time
@@ -429,9 +482,7 @@ def test_evaluate_render_and_export_refuse_outputs_that_are_not_regular_files(
 
 
 # ------------------------------------------------------------------ a finished run's params/
-def test_a_flipped_byte_in_any_file_of_params_is_refused_naming_the_file(
-    trained, tmp_path, capsys
-):
+def test_a_flipped_byte_in_any_file_of_params_is_refused_naming_the_file(trained, tmp_path, capsys):
     from jaxnav.evaluate.__main__ import main as evaluate_main
     from jaxnav.export import main as export_main
 
@@ -473,9 +524,7 @@ def test_a_damaged_metadata_of_a_run_saved_without_checksums_is_one_line(
 
 # ------------------------------------------------------------------ a disk that refuses writes
 @contextlib.contextmanager
-def small_filesystem(
-    where: Path, state: str, size: str = "256k", free: int = 0
-) -> Iterator[Path]:
+def small_filesystem(where: Path, state: str, size: str = "256k", free: int = 0) -> Iterator[Path]:
     """A real tmpfs of ``size`` at ``where``: ``full`` (the file ``filler`` takes all but
     ``free`` bytes) or ``read-only`` (remounted so); root only, else the test is skipped."""
     where.mkdir()
