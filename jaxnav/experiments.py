@@ -38,7 +38,15 @@ import numpy as np
 
 from jaxnav import run_dir
 from jaxnav.agents.dqn import AGENT_LABELS, PAPER_AGENTS
-from jaxnav.cli import HelpFormatter, Parser, UsageError, fail, one_line, parse_env_arg
+from jaxnav.cli import (
+    HelpFormatter,
+    Parser,
+    UsageError,
+    fail,
+    one_line,
+    parse_env_arg,
+    write_failed,
+)
 from jaxnav.config import TrainConfig
 from jaxnav.environment import Environment, EnvParams
 from jaxnav.evaluate import (
@@ -56,6 +64,7 @@ from jaxnav.evaluate import (
 from jaxnav.programs import enable_compilation_cache
 from jaxnav.registration import env_config, make
 from jaxnav.runner import Progress, train_seeds
+from jaxnav.safe_io import WriteFault, atomic_output, write_text
 from jaxnav.train import Trainer
 
 AGENTS = PAPER_AGENTS  # name -> the TrainConfig fields that make the agent
@@ -318,13 +327,14 @@ def run_experiment(
             }
             print_rows(suite.name, rows)
     results["wall_s_before_figures"] = time.perf_counter() - t_start
-    np.savez_compressed(partial / "episodes.npz", **arrays)
+    with atomic_output(partial / "episodes.npz") as tmp:
+        np.savez_compressed(tmp, **arrays)
     run_dir.write_json(partial / "results.json", results)
-    (partial / "results.md").write_text(results_markdown(results))
+    write_text(partial / "results.md", results_markdown(results))
     plots.draw_all(partial, results, arrays)
     results["wall_s"] = time.perf_counter() - t_start
     run_dir.write_json(partial / "results.json", results)
-    (partial / "results.md").write_text(results_markdown(results))
+    write_text(partial / "results.md", results_markdown(results))
     run_dir.complete(partial, out)
     print(f"\nwall time {results['wall_s']:.0f}s; results in {out}")
     return results
@@ -631,7 +641,7 @@ def generalization_main(args: argparse.Namespace, command: str) -> int:
     out.mkdir(parents=True, exist_ok=True)
     run_dir.write_json(out / "results.json", results)
     table = generalization_markdown(results)
-    (out / "results.md").write_text(table)
+    write_text(out / "results.md", table)
     print(table)
     for fam in families:  # trajectories on each hand-drawn maze, where the run fits it
         maze_file = fam.env_kwargs.get("maze_file")
@@ -722,6 +732,15 @@ def parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the experiment ``argv`` (default: the command line's) names; the exit code."""
+    try:
+        return _main(argv)
+    except WriteFault as e:  # a full disk, a read-only directory: one line, nothing partial
+        return write_failed("jaxnav.experiments", e)
+    except ValueError as e:  # an output that is a link or a device, found when writing it
+        return fail("jaxnav.experiments", str(e))
+
+
+def _main(argv: Sequence[str] | None) -> int:
     prog = "jaxnav.experiments"
     try:
         args = parser().parse_args(argv)

@@ -28,7 +28,7 @@ from jaxnav.checkpoints import manifest_damage, sha256_of, this_process_only, wr
 from jaxnav.config import TrainConfig, upgrade_saved
 from jaxnav.host import host_info, package_version
 from jaxnav.registration import env_config
-from jaxnav.safe_io import atomic_output
+from jaxnav.safe_io import atomic_output, write_text
 from jaxnav.train import Trainer
 
 PACKAGES = ("jaxnav", "jax", "jaxlib", "flax", "optax", "chex", "orbax-checkpoint", "mujoco-mjx")
@@ -198,8 +198,7 @@ def config_from_json(d: dict[str, Any]) -> TrainConfig:
 def write_json(path: Path, obj: Any) -> None:
     """Write atomically: a crash leaves the old file or the new one, never half of one
     (``WriteFault`` for a full disk and the like)."""
-    with atomic_output(path) as tmp:
-        tmp.write_text(json.dumps(obj, indent=2) + "\n")
+    write_text(path, json.dumps(obj, indent=2) + "\n")
 
 
 def write_metrics_csv(path: Path, metrics: dict[str, np.ndarray], seeds: list[int]) -> None:

@@ -18,6 +18,7 @@ import subprocess
 import sys
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import jax
 import numpy as np
@@ -524,14 +525,19 @@ def test_a_damaged_metadata_of_a_run_saved_without_checksums_is_one_line(
 
 # ------------------------------------------------------------------ a disk that refuses writes
 @contextlib.contextmanager
-def small_filesystem(where: Path, state: str, size: str = "256k", free: int = 0) -> Iterator[Path]:
+def small_filesystem(
+    where: Path, state: str, size: str = "256k", free: int = 0, before: Any = None
+) -> Iterator[Path]:
     """A real tmpfs of ``size`` at ``where``: ``full`` (the file ``filler`` takes all but
-    ``free`` bytes) or ``read-only`` (remounted so); root only, else the test is skipped."""
+    ``free`` bytes) or ``read-only`` (remounted so), after ``before(where)`` has put files
+    there; root only, else the test is skipped."""
     where.mkdir()
     mount = ["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(where)]
     if subprocess.run(mount, capture_output=True).returncode != 0:
         pytest.skip("mounting a tmpfs needs root")
     try:
+        if before is not None:
+            before(where)
         if state == "full":
             fd = os.open(where / "filler", os.O_WRONLY | os.O_CREAT)
             try:
@@ -571,6 +577,71 @@ def test_evaluate_render_and_export_on_a_disk_that_refuses_writes_are_one_line(
             err = one_line_error(capsys, 4, command(str(disk / name)))
             assert err.startswith("jaxnav.") and f"cannot write {disk / name}: {why}" in err
             assert nodes(disk) == before, name  # nothing partial left behind
+
+
+@pytest.mark.parametrize("state", ["full", "read-only"])
+def test_experiments_plot_and_pretrained_add_on_a_disk_that_refuses_writes_are_one_line(
+    state, trained, tmp_path, capsys, monkeypatch
+):
+    """The writers behind ``experiments plot`` and ``pretrained add`` (figures, the copied
+    policy, the manifest) went around ``safe_io``: a raw OSError and a partial file left."""
+    from jaxnav import pretrained
+    from jaxnav.experiments import main as experiments_main
+    from jaxnav.pretrained import __main__ as pretrained_cli
+    from jaxnav.pretrained import check
+
+    def put(where: Path) -> None:
+        shutil.copytree(trained, where / "run")
+        (where / "pretrained").mkdir()
+        shutil.copy(pretrained.MANIFEST, where / "pretrained" / "manifest.json")
+
+    policy = tmp_path / "policy.npz"
+    shutil.copy(pretrained.path("gridmaze-dqn"), policy)
+    why = {"full": "no space left on device", "read-only": "read-only file system"}[state]
+    with small_filesystem(tmp_path / "disk", state, size="4m", before=put) as disk:
+        folder = disk / "pretrained"
+        for module in (pretrained, check, pretrained_cli):
+            monkeypatch.setattr(module, "HERE", folder, raising=False)
+        for module in (pretrained, check):
+            monkeypatch.setattr(module, "MANIFEST", folder / "manifest.json")
+        monkeypatch.setattr(check, "measure", lambda *args: {"success_rate": 1.0})
+        files = lambda: [n for n in nodes(disk) if not stat.S_ISDIR(n[1])]  # noqa: E731
+        before = files()
+        err = one_line_error(capsys, 4, experiments_main(["plot", str(disk / "run")]))
+        assert f"cannot write {disk / 'run' / 'training_curves.png'}: {why}" in err, err
+        argv = ["add", "new-policy", str(policy), "--command", "c"]
+        err = one_line_error(capsys, 4, pretrained_cli.main(argv))
+        assert f"cannot write {folder}" in err and why in err, err
+        assert files() == before  # nothing partial, nothing copied in
+
+
+def test_no_writer_replaces_a_link_or_follows_one_planted_at_its_temporary_file(
+    trained, tmp_path, capsys
+):
+    from jaxnav import safe_io
+    from jaxnav.experiments import main as experiments_main
+
+    run = tmp_path / "run"
+    shutil.copytree(trained, run)
+    (tmp_path / "kept").write_text("kept")
+    (run / "training_curves.png").symlink_to(tmp_path / "kept")
+    err = one_line_error(capsys, 2, experiments_main(["plot", str(run)]))
+    assert f"{run / 'training_curves.png'}: is a symbolic link" in err, err
+    assert (run / "training_curves.png").is_symlink()
+    # a link at the temporary file is removed, not written through
+    (run / "training_curves.png").unlink()
+    (run / ".training_curves.partial.png").symlink_to(tmp_path / "kept")
+    assert experiments_main(["plot", str(run)]) == 0
+    assert (tmp_path / "kept").read_text() == "kept"
+    assert (run / "training_curves.png").read_bytes()[:4] == b"\x89PNG"
+    assert not os.path.lexists(run / ".training_curves.partial.png")
+    # a FIFO appearing at the path while the file is written is not replaced
+    fifo = tmp_path / "out.json"
+    with pytest.raises(ValueError, match="is a FIFO"):
+        with safe_io.atomic_output(fifo) as tmp:
+            tmp.write_text("{}")
+            os.mkfifo(fifo)
+    assert stat.S_ISFIFO(fifo.lstat().st_mode) and not list(tmp_path.glob(".out*"))
 
 
 def test_resume_of_a_run_whose_directory_is_read_only_is_one_line_then_completes(

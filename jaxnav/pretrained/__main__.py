@@ -14,9 +14,10 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from jaxnav.cli import Parser, UsageError, fail
+from jaxnav.cli import Parser, UsageError, fail, write_failed
 from jaxnav.deploy.policy import Policy
 from jaxnav.pretrained import HERE, manifest
+from jaxnav.safe_io import WriteFault
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -64,6 +65,8 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         entry = add_entry(args.name, args.file, args.command, args.episodes, args.seed, args.note)
+    except WriteFault as e:  # the package directory is full or read-only
+        return write_failed("jaxnav.pretrained", e)
     except ValueError as e:  # the policy's env cannot be built here
         return fail("jaxnav.pretrained", str(e))
     m = entry["measured"]
