@@ -91,9 +91,7 @@ def test_a_maze_file_too_large_for_its_geodesic_table_is_refused_before_it_is_bu
         (["--maze-file", "m.txt", "--env-arg", "maze_file=n.txt"], "both given"),
     ],
 )
-def test_empty_env_repeated_env_arg_and_empty_maze_file_are_refused(
-    argv, want, tmp_path, capsys
-):
+def test_empty_env_repeated_env_arg_and_empty_maze_file_are_refused(argv, want, tmp_path, capsys):
     """Each was a silent choice: the default env, the last value, the current directory."""
     out = tmp_path / "r"
     err = one_line_error(capsys, 2, train_main([*TINY_FLAGS, *argv, "--out", str(out)]))
@@ -172,9 +170,7 @@ def test_float32_overflow_and_int_bools_on_the_command_line_are_one_line(arg, tm
 
 
 # ------------------------------------------------------------------ 4. memory
-def test_per_interval_metrics_too_large_for_memory_are_refused_before_the_run_dir(
-    tmp_path, capsys
-):
+def test_per_interval_metrics_too_large_for_memory_are_refused_before_the_run_dir(tmp_path, capsys):
     out = tmp_path / "r"
     big = ["--num-seeds", "4096", "--log-interval", "1", "--num-envs", "1", "--replay-ratio", "8"]
     argv = [*TINY_FLAGS, *big, "--total-timesteps", "2000000000", "--out", str(out)]
@@ -420,3 +416,70 @@ def test_a_cache_directory_others_can_write_is_not_used_and_nothing_is_unpickled
     (warning,) = [line for line in err.splitlines() if "JAXNAV_CACHE_DIR" in line]
     assert f"{root} is writable by other users (mode 777)" in warning, warning
     assert "not used" in warning
+
+
+# ------------------------------------------------------------------ 8. the deployment layer
+@pytest.fixture(scope="module")
+def laser_policy_metadata() -> dict:
+    from jaxnav import export
+    from jaxnav.config import TrainConfig
+    from jaxnav.train import Trainer
+
+    config = TrainConfig(
+        env="RobotSimple-v0", env_kwargs={"backend": "kinematic"}, hidden_sizes=(8,)
+    )
+    return export.policy_metadata(Trainer(config))
+
+
+def test_scan_values_that_used_to_crash_or_pass_are_refused_in_one_line(laser_policy_metadata):
+    """A range_max given as text crashed inside numpy; 2-D ranges, a negative beam width and
+    a pose or goal beyond float32 (a frame or unit mix-up) gave observations of inf."""
+    from jaxnav.deploy.sensors import LaserScan, ScanObservation
+
+    scan = dict(
+        angle_min=-3.14159, angle_increment=2 * 3.14159 / 360, range_min=0.1, range_max=10.0
+    )
+    ranges = [1.0] * 360
+    build = ScanObservation(laser_policy_metadata)
+    at, goal = (1.0, 1.0, 0.0), (2.0, 2.0)
+    cases = {
+        "range_max='10'": (LaserScan(**{**scan, "range_max": "x"}, ranges=ranges), at, goal),
+        "ranges of shape (1, 360)": (LaserScan(**scan, ranges=[ranges]), at, goal),
+        "robot_x=1e+300": (LaserScan(**scan, ranges=ranges), (1e300, 1.0, 0.0), goal),
+        "goal_x=-1e+40": (LaserScan(**scan, ranges=ranges), at, (-1e40, 2.0)),
+    }
+    for name, args in cases.items():
+        want = name.split("=")[0] if name.startswith("range_max") else name
+        with pytest.raises(ValueError, match=re.escape(want)) as e:
+            build(*args)
+        assert "\n" not in str(e.value)
+    narrow = ScanObservation(laser_policy_metadata, beam_width=-0.1)
+    with pytest.raises(ValueError, match=r"beam_width=-0.1: must be a width >= 0"):
+        narrow(LaserScan(**scan, ranges=ranges), at, goal)
+    # range_max=inf stays allowed, as documented
+    obs = build(LaserScan(**{**scan, "range_max": float("inf")}, ranges=ranges), at, goal)
+    assert obs.dtype.name == "float32" and bool((abs(obs) < 1e6).all())
+
+
+def test_policy_refuses_observations_beyond_float32_or_not_real():
+    """1e39 is finite in float64 and inf in the float32 the network computes in: its action
+    came from inf Q-values; complex numbers lost their imaginary part with a warning."""
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    from jaxnav import export
+    from jaxnav.config import TrainConfig
+    from jaxnav.deploy.policy import Policy
+    from jaxnav.train import Trainer
+
+    trainer = Trainer(TrainConfig(env="GridMaze-v0", env_kwargs={"size": 5}, hidden_sizes=(8,)))
+    params = trainer.network.init(jax.random.key(0), jnp.zeros((1, trainer.obs_size)))
+    policy = Policy(export.policy_arrays(trainer.network, params), export.policy_metadata(trainer))
+    n = policy.obs_size
+    with pytest.raises(ValueError, match=r"observation\[3\]=1e\+39: beyond float32"):
+        policy.act(np.r_[np.zeros(3), 1e39, np.zeros(n - 4)])
+    for bad in (np.zeros(n, complex), np.array(["1"] * n), [None] * n):
+        with pytest.raises(ValueError, match="observation: must be real numbers"):
+            policy.act(bad)
+    assert policy.act(np.zeros(n, np.int64)) in range(4)  # integers and bools are numbers

@@ -89,17 +89,23 @@ def forward(arrays: dict[str, np.ndarray], network: dict[str, Any], obs: np.ndar
     """Q-values ``float32[..., num_actions]`` of observations ``obs[..., obs_size]`` for the
     network described by ``network`` (the metadata's ``"network"``) with weights ``arrays``."""
     try:
-        obs = np.asarray(obs, np.float64)
+        obs = np.asarray(obs)
+        if obs.dtype.kind not in "biuf":  # complex, strings, objects: no silent conversion
+            raise TypeError
+        obs = obs.astype(np.float64)
     except (TypeError, ValueError):
-        raise ValueError("observation: must be numbers") from None
+        raise ValueError("observation: must be real numbers") from None
     if obs.ndim == 0 or obs.shape[-1] != network["obs_size"]:
         raise ValueError(
             f"observation of shape {obs.shape}; the policy reads {network['obs_size']} values"
         )
-    if not np.isfinite(obs).all():  # no action from a NaN or an infinite input
-        where = tuple(int(i) for i in np.argwhere(~np.isfinite(obs))[0])
+    bad = ~(np.abs(obs) <= np.finfo(np.float32).max)  # NaN, inf, or inf once float32
+    if bad.any():  # no action from a NaN or an infinite input
+        where = tuple(int(i) for i in np.argwhere(bad)[0])
         index = ", ".join(map(str, where))
-        raise ValueError(f"observation[{index}]={float(obs[where])}: not finite")
+        value = float(obs[where])
+        why = "not finite" if not math.isfinite(value) else "beyond float32"
+        raise ValueError(f"observation[{index}]={value}: {why}")
     onehot = network.get("onehot_sizes")
     x = obs.astype(np.float32) if onehot is None else expand_onehot(obs, onehot)
     eps = np.float32(network.get("layer_norm_epsilon", 1e-6))
