@@ -42,6 +42,7 @@ from jaxnav.cli import (
     HelpFormatter,
     Parser,
     UsageError,
+    check_seed,
     fail,
     one_line,
     parse_env_arg,
@@ -62,7 +63,7 @@ from jaxnav.evaluate import (
     t_interval,
 )
 from jaxnav.programs import enable_compilation_cache
-from jaxnav.registration import env_config, make
+from jaxnav.registration import env_config, make, registered_envs
 from jaxnav.runner import Progress, train_seeds
 from jaxnav.safe_io import WriteFault, atomic_output, write_text
 from jaxnav.train import Trainer
@@ -505,6 +506,8 @@ def parse_family(text: str) -> Family:
     if not tokens:
         raise ValueError(f"--family {text!r}: give an env id, then KEY=VALUE overrides")
     env, *pairs = tokens
+    if env != "own" and env not in registered_envs():  # a typo, not a family to skip
+        raise ValueError(f"--family {text!r}: unknown env id {env!r} (or own)")
     kwargs = {}
     for pair in pairs:
         try:
@@ -611,8 +614,7 @@ def generalization_main(args: argparse.Namespace, command: str) -> int:
     try:
         if not 1 <= args.episodes <= 10**7:
             raise ValueError(f"--episodes {args.episodes}: must be in [1, 10000000]")
-        if args.seed < 0:
-            raise ValueError(f"--seed {args.seed}: must be non-negative")
+        check_seed(args.seed)
         if not 0 <= args.gifs <= 16:
             raise ValueError(f"--gifs {args.gifs}: must be in [0, 16]")
         configs = [run_dir.load_config(run) for run in args.runs]
@@ -754,8 +756,7 @@ def _main(argv: Sequence[str] | None) -> int:
         size = "quick" if args.quick else "smoke" if args.smoke else "paper"
         if not 2 <= args.seeds <= 4096:
             raise UsageError(f"--seeds {args.seeds}: must be in [2, 4096] (a CI needs 2)")
-        if args.seed < 0:
-            raise UsageError(f"--seed {args.seed}: must be non-negative")
+        check_seed(args.seed)
         if args.test_episodes is not None and not 1 <= args.test_episodes <= 10**6:
             raise UsageError(f"--test-episodes {args.test_episodes}: must be in [1, 1000000]")
         if args.experiment == "paper-grid":

@@ -38,6 +38,7 @@ from jaxnav.cli import (
     add_env_args,
     add_policy_source,
     check_policy_source,
+    check_seed,
     env_from_args,
     fail,
     write_failed,
@@ -457,9 +458,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.out.suffix not in OUT_SUFFIXES:
             raise UsageError(f"--out {args.out}: must end in {', '.join(OUT_SUFFIXES)}")
         check_output_file(args.out)  # a directory or a device is refused, not replaced
-        if args.seed < 0 or not 1 <= args.fps <= 100:
-            bad = f"--seed {args.seed}" if args.seed < 0 else f"--fps {args.fps}"
-            raise UsageError(f"{bad}: out of range")
+        check_seed(args.seed)
+        if not 1 <= args.fps <= 100:
+            raise UsageError(f"--fps {args.fps}: out of range")
         if args.pretrained is not None:
             from jaxnav.export import load_pretrained
 

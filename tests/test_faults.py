@@ -644,6 +644,21 @@ def test_no_writer_replaces_a_link_or_follows_one_planted_at_its_temporary_file(
     assert stat.S_ISFIFO(fifo.lstat().st_mode) and not list(tmp_path.glob(".out*"))
 
 
+def test_a_new_run_or_results_on_a_read_only_disk_exit_4_naming_it(tmp_path, capsys):
+    """A read-only --out was refused as bad input (exit 2, "not a writable directory"): the
+    machine's refusal is exit 4, as for every other writer."""
+    from jaxnav.experiments import main as experiments_main
+
+    with small_filesystem(tmp_path / "disk", "read-only") as disk:
+        err = one_line_error(capsys, 4, train_main([*TINY, "--out", str(disk / "run")]))
+        assert err == f"jaxnav.train: error: cannot write {disk}: read-only file system; " + (
+            "remount it writable or write elsewhere"
+        ), err
+        argv = ["paper-grid", "--smoke", "--out", str(disk / "results")]
+        err = one_line_error(capsys, 4, experiments_main(argv))
+        assert f"cannot write {disk}: read-only file system" in err, err
+
+
 def test_resume_of_a_run_whose_directory_is_read_only_is_one_line_then_completes(
     tmp_path, capsys, monkeypatch, reference
 ):

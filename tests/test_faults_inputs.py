@@ -347,19 +347,23 @@ def test_ctrl_c_while_the_command_imports_is_one_line_exit_130(tmp_path):
 
 
 @pytest.mark.parametrize("moment", ["building the env", "the run directory written"])
-def test_ctrl_c_before_training_began_is_one_line_exit_130_and_resumable(
-    moment, tmp_path, capsys, monkeypatch
+@pytest.mark.parametrize("signame", ["SIGINT", "SIGTERM"])
+def test_ctrl_c_or_sigterm_before_training_began_is_one_line_128_plus_it_and_resumable(
+    moment, signame, tmp_path, capsys, monkeypatch
 ):
+    """SIGTERM then killed the process without a word (Ctrl-C was answered)."""
     import os
     import signal
 
     from jaxnav import runner
     from jaxnav.train import __main__ as train_cli
 
+    signum = getattr(signal, signame)
+
     def then_ctrl_c(real):
         def call(*args, **kwargs):
             result = real(*args, **kwargs)
-            os.kill(os.getpid(), signal.SIGINT)  # as the terminal sends it
+            os.kill(os.getpid(), signum)  # as the terminal or a scheduler sends it
             return result
 
         return call
@@ -370,8 +374,8 @@ def test_ctrl_c_before_training_began_is_one_line_exit_130_and_resumable(
         monkeypatch.setattr(runner, "open_run", then_ctrl_c(runner.open_run))
     out = tmp_path / "run"
     argv = [*TINY_FLAGS, "--total-timesteps", "64", "--eval-episodes", "0", "--out", str(out)]
-    err = one_line_error(capsys, 130, train_main(argv))
-    assert err.startswith("jaxnav.train: stopped by SIGINT before training began; ")
+    err = one_line_error(capsys, 128 + signum, train_main(argv))
+    assert err.startswith(f"jaxnav.train: stopped by {signame} before training began; ")
     monkeypatch.undo()
     if moment == "building the env":
         assert err.endswith("nothing was trained or written") and not list(tmp_path.iterdir())
@@ -380,6 +384,86 @@ def test_ctrl_c_before_training_began_is_one_line_exit_130_and_resumable(
         assert err.endswith(f"continue with: python -m jaxnav.train --resume {out}")
         assert train_main(["--resume", str(out)]) == 0
     assert (out / "summary.json").is_file()
+
+
+def test_sigint_or_sigterm_while_evaluate_runs_is_one_line_and_writes_nothing(trained, tmp_path):
+    """Commands without training's handler: a SIGTERM killed them without a word, a Ctrl-C
+    gave a KeyboardInterrupt traceback; now they unwind (nothing half written), then one
+    line and 128 + the signal."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        out = tmp_path / f"eval-{signum}.json"
+        argv = [str(trained), "--episodes", "10000000", "--out", str(out)]
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "jaxnav.evaluate", *argv],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        )
+        time.sleep(4)  # importing, compiling or evaluating: each answered alike
+        proc.send_signal(signum)
+        _, err = proc.communicate(timeout=120)
+        name = signal.Signals(signum).name
+        assert proc.returncode == 128 + signum, err
+        assert err.count("\n") == 1 and err.startswith(f"jaxnav.evaluate: stopped by {name}"), err
+        assert not out.exists() and not list(tmp_path.glob(".*partial*"))
+
+
+def test_a_signal_raised_inside_a_gc_callback_is_sent_again_not_lost(monkeypatch):
+    """A SIGTERM whose exception landed in XLA's gc callback was printed as "Exception
+    ignored" and lost: the command ran to its end, exit 0. The command's unraisable hook sends
+    the signal again, so it lands in the command's own code."""
+    import signal
+    import time
+
+    import jaxnav
+
+    class Collected:
+        def __del__(self):
+            jaxnav.raise_stopped(signal.SIGTERM, None)  # as the handler, inside a __del__
+
+    monkeypatch.setattr("sys.unraisablehook", jaxnav._stopped_unraisable)
+    previous = signal.signal(signal.SIGTERM, jaxnav.raise_stopped)
+    try:
+        with pytest.raises(jaxnav.Stopped) as e:
+            Collected()  # collected at once: its exception goes to the unraisable hook
+            time.sleep(5)  # the signal sent again ends the wait
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    assert e.value.signum == signal.SIGTERM
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["evaluate", "--seed", "1" * 30],
+        ["render", "--seed", str(2**31)],
+        ["experiments", "generalization", "RUN", "--seed", "1" * 30],
+        ["experiments", "generalization", "RUN", "--family", "NoSuchEnv-v0 size=5"],
+    ],
+)
+def test_seeds_beyond_32_bits_and_unknown_family_envs_are_one_line(argv, trained, tmp_path, capsys):
+    """A seed too large for jax.random.key was an OverflowError traceback; a family of an
+    unknown env id was skipped with exit 0."""
+    from jaxnav.evaluate.__main__ import main as evaluate_main
+    from jaxnav.experiments import main as experiments_main
+    from jaxnav.render import main as render_main
+
+    main = {"evaluate": evaluate_main, "render": render_main, "experiments": experiments_main}
+    command, *rest = argv
+    rest = [str(trained) if a == "RUN" else a for a in rest]
+    if command != "experiments":
+        rest = [str(trained), *rest]
+    out = tmp_path / ("out.png" if command == "render" else "out")
+    err = one_line_error(capsys, 2, main[command]([*rest, "--out", str(out)]))
+    assert ("must be in [0, 2147483647]" in err) or ("unknown env id 'NoSuchEnv-v0'" in err), err
+    assert not out.exists()
 
 
 # ------------------------------------------------------------------ 8. the programs cache

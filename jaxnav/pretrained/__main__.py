@@ -14,7 +14,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from jaxnav.cli import Parser, UsageError, fail, write_failed
+from jaxnav.cli import Parser, UsageError, check_seed, fail, write_failed
 from jaxnav.deploy.policy import Policy
 from jaxnav.pretrained import HERE, manifest
 from jaxnav.safe_io import WriteFault
@@ -42,8 +42,7 @@ def main(argv: list[str] | None = None) -> int:
                 raise UsageError("--command: give the commands that made the policy")
             if not 1 <= args.episodes <= 10**7:
                 raise UsageError(f"--episodes {args.episodes}: must be in [1, 10000000]")
-            if args.seed < 0:
-                raise UsageError(f"--seed {args.seed}: must be non-negative")
+            check_seed(args.seed)
             shipped = args.name in manifest() or (HERE / f"{args.name}.npz").exists()
             if shipped and not args.force:
                 raise UsageError(
