@@ -644,6 +644,20 @@ def test_no_writer_replaces_a_link_or_follows_one_planted_at_its_temporary_file(
     assert stat.S_ISFIFO(fifo.lstat().st_mode) and not list(tmp_path.glob(".out*"))
 
 
+def test_a_programs_cache_write_refused_leaves_no_temporary_file(tmp_path, monkeypatch):
+    """The traced-programs cache is best effort (a refused write costs only start-up time),
+    but a full disk left its half-written temporary file in the cache directory."""
+    from jaxnav import programs
+
+    def full(obj, f):
+        f.write(b"half of it")
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(programs.pickle, "dump", full)
+    programs._save(tmp_path / "cache", {"entry": 1})
+    assert list((tmp_path / "cache").iterdir()) == []
+
+
 def test_a_new_run_or_results_on_a_read_only_disk_exit_4_naming_it(tmp_path, capsys):
     """A read-only --out was refused as bad input (exit 2, "not a writable directory"): the
     machine's refusal is exit 4, as for every other writer."""
