@@ -41,7 +41,8 @@ from typing import Any
 import numpy as np
 
 RESULTS = Path(__file__).resolve().parent / "results" / "red_team.json"
-MAZES = Path(__file__).resolve().parents[1] / "examples" / "mazes"
+ROOT = Path(__file__).resolve().parents[1]
+MAZES = ROOT / "examples" / "mazes"
 CASE_TIMEOUT_S = 300  # a case still running then is a hang: a failure
 
 TINY = [
@@ -843,21 +844,24 @@ def signal_cases(world: World) -> list[Case]:
             cases.append(Case("signals", f"{name} during {moment}, then --resume", (128 + signum,),
                               signalled, train=True, signal_case=True))  # fmt: skip
     # evaluate and render while they compile and play, in processes of their own
-    for cmd, argv in (
-        ("evaluate", [str(world.run), "--episodes", "10000000", "--out", "e.json"]),
-        ("render", [str(world.run), "--episodes", "16", "--quiet", "--out", "t.gif"]),
+    for cmd, argv, delay in (
+        ("evaluate", [str(world.run), "--episodes", "10000000", "--out", "e.json"], 4.0),
+        ("render", [str(world.run), "--episodes", "16", "--quiet", "--out", "t.gif"], 4.0),
+        ("export", [str(world.run), "--out", "p.npz"], 2.0),
+        ("experiments", ["plot", str(world.run)], 2.0),
     ):
         for signum in (signal.SIGINT, signal.SIGTERM):
 
             def stopped(
-                where: Path, cmd: str = cmd, argv: list = argv, signum: int = signum
-            ) -> Any:
-                code, stdout, stderr = in_process_of_its_own(f"jaxnav.{cmd}", argv, signum, 4.0)
+                where: Path, cmd: str = cmd, argv: list = argv, signum: int = signum,
+                delay: float = delay,
+            ) -> Any:  # fmt: skip
+                outcome = in_process_of_its_own(f"jaxnav.{cmd}", argv, signum, delay)
                 left = sorted(p.name for p in where.iterdir())
-                return (code, stdout, stderr) if not left else ("left", "", f"left {left}")
+                return outcome if not left else ("left", "", f"left {left}")
 
             name = signal.Signals(signum).name
-            cases.append(Case("signals", f"{name} 4 s into python -m jaxnav.{cmd}",
+            cases.append(Case("signals", f"{name} {delay:g} s into python -m jaxnav.{cmd}",
                               (128 + signum,), stopped, signal_case=True))  # fmt: skip
     # the command starting up, in a process of its own (before train's handler is set)
     for signum, delay in ((signal.SIGINT, 1.0), (signal.SIGTERM, 1.0), (signal.SIGTERM, 3.0)):
@@ -878,7 +882,9 @@ def in_process_of_its_own(
     """``python -m module argv`` sent ``signum`` after ``delay`` seconds: (exit code, where
     killed by a signal 128 + it as a shell reports it, stdout, stderr)."""
     cmd = [sys.executable, "-m", module, *argv]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    path = os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])
+    env = {**os.environ, "PYTHONPATH": path}  # this checkout's jaxnav, whatever the directory
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
     time.sleep(delay)
     proc.send_signal(signum)
     stdout, stderr = proc.communicate(timeout=120)
@@ -1178,18 +1184,18 @@ def main(argv: list[str] | None = None) -> int:
     return 0 if passed == len(results) else 1
 
 
-def run_all(only: str | None = None, areas: tuple[str, ...] | None = None) -> list[Result]:
-    """Every case (or those matching ``only``, or of ``areas``) in a scratch directory."""
+def run_all(only: str | tuple[str, ...] | None = None) -> list[Result]:
+    """Every case (or those whose area or name contains ``only``, or one of its texts) in a
+    scratch directory."""
     root = Path(tempfile.mkdtemp(prefix="red-team-"))
     world = make_world(root / "world")
     try:
         groups = [train_cases, write_fault_cases, command_cases, signal_cases, library_cases,
                   deploy_cases]  # fmt: skip
         cases = [c for group in groups for c in group(world)]
-        if areas is not None:
-            cases = [c for c in cases if c.area in areas]
         if only is not None:
-            cases = [c for c in cases if only in c.area or only in c.name]
+            texts = (only,) if isinstance(only, str) else only
+            cases = [c for c in cases if any(t in c.area or t in c.name for t in texts)]
         results = []
         for case in cases:
             results.append(run_case(case, root))
