@@ -43,6 +43,7 @@ import numpy as np
 RESULTS = Path(__file__).resolve().parent / "results" / "red_team.json"
 ROOT = Path(__file__).resolve().parents[1]
 MAZES = ROOT / "examples" / "mazes"
+ROOMS = (MAZES / "rooms.txt").read_bytes()
 CASE_TIMEOUT_S = 300  # a case still running then is a hang: a failure
 
 TINY = [
@@ -197,7 +198,9 @@ def run_case(case: Case, root: Path) -> Result:
     expected = "|".join(map(str, case.expect))
     why = judge(case, code, err, set().union(*NEW_FILES))
     last = (err.strip().splitlines() or [""])[-1][:300]
-    return Result(case.area, case.name, expected, str(code), not why, why, seconds, last)
+    scratch = str(root)  # this machine's scratch directory, not kept in the results
+    last, why = (text.replace(scratch, "$TMP") for text in (last, why))
+    return Result(case.area, case.name, expected, str(code), not why, why, round(seconds, 3), last)
 
 
 def judge(case: Case, code: Any, err: str, new: set[Path]) -> str:
@@ -392,8 +395,8 @@ def train_cases(world: World) -> list[Case]:
                  "garbage", "unicode"):  # fmt: skip
         cases.append(Case("maze file", f"--maze-file {kind}", (2,), maze(kind)))
     mazes = {
-        "no start": b"cell_size: 0.5\n....\n.#G.\n",
-        "no goal": b"cell_size: 0.5\nS...\n.#..\n",
+        "no free cell": ROOMS.replace(b".", b"#"),  # a maze large enough for the robot
+        "one free cell": b"cell_size: 1.0\n" + b"#" * 10 + b"\n" + b"#" * 9 + b".\n",
         "two starts": b"cell_size: 0.5\nS..S\n...G\n",
         "ragged rows": b"cell_size: 0.5\nS...\n..\n...G\n",
         "unknown char": b"cell_size: 0.5\nS.x.\n...G\n",
@@ -417,7 +420,7 @@ def train_cases(world: World) -> list[Case]:
         cases.append(Case("maze file", f"maze file: {name}", (2,), maze("m", content)))
     cases.append(
         Case("maze file", "maze file: UTF-8 BOM (read as without)", (0,),
-             maze("bom", b"\xef\xbb\xbf" + MAZES.joinpath("rooms.txt").read_bytes()),
+             maze("bom", b"\xef\xbb\xbf" + ROOMS),
              nothing_new=False)
     )  # fmt: skip
     cases.append(Case("train", "control: the tiny run's flags are accepted", (0,),
@@ -691,7 +694,8 @@ def command_cases(world: World) -> list[Case]:
         ["generalization", run, "--gifs", "99"], ["generalization", run, "--family", "nope"],
         ["generalization", run, "--seed", "-1"],
     ):  # fmt: skip
-        cases.append(Case("experiments", " ".join(argv) or "(no arguments)", (2,),
+        name = " ".join(argv).replace(run, "RUN") or "(no arguments)"
+        cases.append(Case("experiments", name, (2,),
                           lambda w, a=argv: call(experiments_main, a)))  # fmt: skip
     for kind in ("fifo", "garbage", "empty_file", "dir"):
 
@@ -1177,9 +1181,11 @@ def main(argv: list[str] | None = None) -> int:
         "seconds": round(sum(r.seconds for r in results), 1),
         "results": [dataclasses.asdict(r) for r in results],
     }
-    if args.only is None:
+    if args.only is None or args.out != RESULTS:  # one case a line
+        rows = ",\n".join("  " + json.dumps(dataclasses.asdict(r)) for r in results)
+        head = json.dumps({k: v for k, v in summary.items() if k != "results"}, indent=1)
         args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(json.dumps(summary, indent=1) + "\n")
+        args.out.write_text(f'{head[:-2]},\n "results": [\n{rows}\n ]\n}}\n')
     print(f"\n{passed} of {len(results)} cases passed")
     return 0 if passed == len(results) else 1
 

@@ -195,6 +195,9 @@ def add_policy_source(p: argparse.ArgumentParser, pretrained_help: str) -> None:
 
 
 def check_policy_source(args: argparse.Namespace) -> None:
-    """``UsageError`` unless exactly one of a run directory and ``--pretrained`` was given."""
+    """``UsageError`` unless exactly one of a run directory and ``--pretrained`` (a name) was
+    given."""
     if (args.run is None) == (args.pretrained is None):
         raise UsageError("give a run directory or --pretrained NAME, one of them")
+    if args.pretrained is not None and not args.pretrained.strip():
+        raise UsageError(f"--pretrained {args.pretrained!r}: empty; give a shipped policy's name")

@@ -623,7 +623,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         args = p.parse_args(argv)
         if not args.run.is_dir():
-            raise ValueError(f"{args.run}: not a run directory (no such directory)")
+            why = "not a directory" if os.path.lexists(args.run) else "no such directory"
+            raise ValueError(f"{args.run}: not a run directory ({why})")
         path, metadata = export_run(args.run, args.format, args.out, args.run_seed)
     except WriteFault as e:
         return write_failed(prog, e)

@@ -451,13 +451,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         args = parser().parse_args(argv)
         check_policy_source(args)
+        defaulted = args.out is None
         if args.out is None:  # a run's pictures belong with the run, not in the cwd
             args.out = Path(f"{args.pretrained}.gif") if args.run is None else args.run / "traj.gif"
         if not 1 <= args.episodes <= 16:
             raise UsageError(f"--episodes {args.episodes}: must be in [1, 16]")
         if args.out.suffix not in OUT_SUFFIXES:
             raise UsageError(f"--out {args.out}: must end in {', '.join(OUT_SUFFIXES)}")
-        check_output_file(args.out)  # a directory or a device is refused, not replaced
+        try:
+            check_output_file(args.out)  # a directory or a device is refused, not replaced
+        except ValueError:
+            if defaulted and args.run is not None:  # RUN/traj.gif: name the run, not its path
+                run_dir.load_config(args.run)
+            raise
         check_seed(args.seed)
         if not 1 <= args.fps <= 100:
             raise UsageError(f"--fps {args.fps}: out of range")

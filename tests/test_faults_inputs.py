@@ -466,6 +466,45 @@ def test_seeds_beyond_32_bits_and_unknown_family_envs_are_one_line(argv, trained
     assert not out.exists()
 
 
+@pytest.mark.parametrize(
+    "case", ["render missing run", "render empty pretrained", "export run a file",
+             "evaluate config not UTF-8", "pretrained add a FIFO"],
+)  # fmt: skip
+def test_errors_name_the_input_at_fault_not_a_path_made_from_it(case, trained, tmp_path, capsys):
+    """The red team's misattributed lines: a missing run blamed on render's default --out,
+    --pretrained '' on --out '.gif', a file as RUN called "no such directory", a config.json
+    that is not UTF-8 without its path, a FIFO given to pretrained add "no such file"."""
+    import os
+
+    from jaxnav.evaluate.__main__ import main as evaluate_main
+    from jaxnav.export import main as export_main
+    from jaxnav.pretrained.__main__ import main as pretrained_main
+    from jaxnav.render import main as render_main
+
+    missing, afile, fifo = tmp_path / "missing", tmp_path / "afile", tmp_path / "p.npz"
+    afile.write_text("x")
+    os.mkfifo(fifo)
+    run = tmp_path / "run"
+    shutil.copytree(trained, run)
+    (run / "config.json").write_bytes(b"\x00\xffgarbage")
+    command, argv, want = {
+        "render missing run": (render_main, [str(missing)], f"{missing}: not a run directory"),
+        "render empty pretrained": (
+            render_main, ["--pretrained", ""], "--pretrained '': empty; give a shipped"
+        ),
+        "export run a file": (export_main, [str(afile)], f"{afile}: not a run directory (not a"),
+        "evaluate config not UTF-8": (
+            evaluate_main, [str(run)], f"{run / 'config.json'}: unreadable run config"
+        ),
+        "pretrained add a FIFO": (
+            pretrained_main, ["add", "x", str(fifo), "--command", "c"],
+            f"{fifo}: not a regular file",
+        ),
+    }[case]  # fmt: skip
+    err = one_line_error(capsys, 2, command(argv))
+    assert want in err, err
+
+
 # ------------------------------------------------------------------ 8. the programs cache
 class Planted:
     """A pickle that, when loaded, creates a file: what a hostile cache entry could do."""

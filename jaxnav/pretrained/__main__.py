@@ -37,7 +37,8 @@ def main(argv: list[str] | None = None) -> int:
             if not args.name.replace("-", "").replace("_", "").isalnum():
                 raise UsageError(f"name {args.name!r}: letters, digits, - and _ only")
             if not args.file.is_file():
-                raise ValueError(f"{args.file}: no such file")
+                why = "not a regular file" if args.file.exists() else "no such file"
+                raise ValueError(f"{args.file}: {why}")
             if not args.command:
                 raise UsageError("--command: give the commands that made the policy")
             if not 1 <= args.episodes <= 10**7:
