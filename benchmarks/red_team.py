@@ -848,30 +848,33 @@ def signal_cases(world: World) -> list[Case]:
             cases.append(Case("signals", f"{name} during {moment}, then --resume", (128 + signum,),
                               signalled, train=True, signal_case=True))  # fmt: skip
     # evaluate and render while they compile and play, in processes of their own
-    for cmd, argv, delay in (
-        ("evaluate", [str(world.run), "--episodes", "10000000", "--out", "e.json"], 4.0),
-        ("render", [str(world.run), "--episodes", "16", "--quiet", "--out", "t.gif"], 4.0),
-        ("export", [str(world.run), "--out", "p.npz"], 2.0),
-        ("experiments", ["plot", str(world.run)], 2.0),
+    for cmd, argv, fraction in (
+        ("evaluate", [str(world.run), "--episodes", "10000000", "--out", "e.json"], None),
+        ("render", [str(world.run), "--episodes", "16", "--quiet", "--out", "t.gif"], 0.6),
+        ("export", [str(world.run), "--out", "p.npz"], 0.6),
+        ("experiments", ["plot", str(world.run)], 0.8),
     ):
         for signum in (signal.SIGINT, signal.SIGTERM):
 
             def stopped(
                 where: Path, cmd: str = cmd, argv: list = argv, signum: int = signum,
-                delay: float = delay,
+                fraction: float | None = fraction,
             ) -> Any:  # fmt: skip
+                # the signal while it works: a share of an uninterrupted run's time
+                delay = 4.0 if fraction is None else fraction * duration(cmd, argv, where)
                 outcome = in_process_of_its_own(f"jaxnav.{cmd}", argv, signum, delay)
                 left = sorted(p.name for p in where.iterdir())
                 return outcome if not left else ("left", "", f"left {left}")
 
             name = signal.Signals(signum).name
-            cases.append(Case("signals", f"{name} {delay:g} s into python -m jaxnav.{cmd}",
+            when = "while it works" if fraction else "4 s in"
+            cases.append(Case("signals", f"{name} {when}: python -m jaxnav.{cmd}",
                               (128 + signum,), stopped, signal_case=True))  # fmt: skip
     # the command starting up, in a process of its own (before train's handler is set)
     for signum, delay in ((signal.SIGINT, 1.0), (signal.SIGTERM, 1.0), (signal.SIGTERM, 3.0)):
 
         def starting(where: Path, signum: int = signum, delay: float = delay) -> Any:
-            argv = [*TINY, "--out", str(where / "r")]
+            argv = [*TINY, "--total-timesteps", "3200", "--out", str(where / "r")]  # seconds
             return in_process_of_its_own("jaxnav.train", argv, signum, delay)
 
         name = signal.Signals(signum).name
@@ -880,15 +883,35 @@ def signal_cases(world: World) -> list[Case]:
     return cases
 
 
+def checkout_env() -> dict[str, str]:
+    """The environment of a command in another process: this checkout's jaxnav, whatever its
+    working directory."""
+    path = os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])
+    return {**os.environ, "PYTHONPATH": path}
+
+
+def duration(cmd: str, argv: list[str], where: Path) -> float:
+    """Seconds ``python -m jaxnav.cmd argv`` takes uninterrupted (run in a directory of its
+    own under ``where``, then removed)."""
+    scratch = where / "timing"
+    scratch.mkdir()
+    t0 = time.perf_counter()
+    subprocess.run([sys.executable, "-m", f"jaxnav.{cmd}", *argv], cwd=scratch,
+                   env=checkout_env(), capture_output=True, timeout=300)  # fmt: skip
+    seconds = time.perf_counter() - t0
+    shutil.rmtree(scratch)
+    return seconds
+
+
 def in_process_of_its_own(
     module: str, argv: list[str], signum: int, delay: float
 ) -> tuple[int, str, str]:
     """``python -m module argv`` sent ``signum`` after ``delay`` seconds: (exit code, where
     killed by a signal 128 + it as a shell reports it, stdout, stderr)."""
     cmd = [sys.executable, "-m", module, *argv]
-    path = os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])
-    env = {**os.environ, "PYTHONPATH": path}  # this checkout's jaxnav, whatever the directory
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    proc = subprocess.Popen(
+        cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=checkout_env()
+    )
     time.sleep(delay)
     proc.send_signal(signum)
     stdout, stderr = proc.communicate(timeout=120)

@@ -300,9 +300,7 @@ def load_config(run: Path) -> TrainConfig:
         raise ValueError(f"{run}: not a run directory (no config.json)")
     try:
         return config_from_json(json.loads(path.read_text())["config"])
-    except (KeyError, TypeError, ValueError) as e:  # ValueError: JSON, UTF-8
-        if str(e).startswith(f"{path}: "):
-            raise
+    except (KeyError, TypeError, ValueError) as e:  # ValueError: JSON, UTF-8, a value
         raise ValueError(f"{path}: unreadable run config ({e})") from None
 
 

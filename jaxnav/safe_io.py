@@ -55,6 +55,17 @@ def write_fault_errno(error: BaseException | None) -> int | None:
     return None
 
 
+def interrupt_in(error: BaseException | None) -> KeyboardInterrupt | None:
+    """The ``KeyboardInterrupt`` (a signal) that ``error`` is or was raised while handling:
+    a writer cut by one closes its file on the way out, which can raise an error of its
+    own ("seek of closed file") that would hide the signal."""
+    for _ in range(20):  # a chain of causes, never a cycle
+        if error is None or isinstance(error, KeyboardInterrupt):
+            return error
+        error = error.__cause__ or error.__context__
+    return None
+
+
 @contextlib.contextmanager
 def atomic_output(path: Path) -> Iterator[Path]:
     """Yield the hidden temporary path ``.STEM.partial.SUFFIX`` beside ``path`` (the suffix
@@ -72,6 +83,9 @@ def atomic_output(path: Path) -> Iterator[Path]:
         os.replace(tmp, path)
     except BaseException as e:
         remove_quietly(tmp)
+        stop = interrupt_in(e)
+        if stop is not None and stop is not e:  # the signal, not the error it caused unwinding
+            raise stop from None
         code = write_fault_errno(e)
         if code is not None and not isinstance(e, WriteFault):
             raise WriteFault(path, code) from e

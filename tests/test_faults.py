@@ -644,6 +644,22 @@ def test_no_writer_replaces_a_link_or_follows_one_planted_at_its_temporary_file(
     assert stat.S_ISFIFO(fifo.lstat().st_mode) and not list(tmp_path.glob(".out*"))
 
 
+def test_a_signal_cutting_a_writer_is_not_hidden_by_the_error_its_cleanup_raises(tmp_path):
+    """Ctrl-C inside np.savez: zipfile's close on the way out raised "seek of closed file",
+    which export reported as bad input (exit 2) in place of the signal (exit 130)."""
+    from jaxnav import Stopped, safe_io
+
+    out = tmp_path / "policy.npz"
+    with pytest.raises(Stopped):
+        with safe_io.atomic_output(out) as tmp:
+            try:
+                tmp.write_bytes(b"half of it")
+                raise Stopped(signal.SIGINT)  # as the handler raises it
+            finally:
+                raise ValueError("seek of closed file")  # as zipfile's close then does
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_a_programs_cache_write_refused_leaves_no_temporary_file(tmp_path, monkeypatch):
     """The traced-programs cache is best effort (a refused write costs only start-up time),
     but a full disk left its half-written temporary file in the cache directory."""
