@@ -11,8 +11,8 @@ library a ``ValueError``. A command case passes when it exits so, prints one lin
 (the last line for a signal, after the handler's notice) without "Traceback", and leaves no
 half-written file (``*.partial*``, ``*.tmp``) and, when it fails, nothing new at all. Most
 cases run in this process (a command's ``main(argv)``); a few signals need a process of their
-own. Full and read-only disks are real tmpfs mounts where this runs as root, else ENOSPC and
-EROFS raised by a patched ``open`` inside the commands' temporary files.
+own. Full and read-only disks are real tmpfs mounts, made where this runs as root (elsewhere
+those cases are left out; the counts say how many ran).
 
 Prints a table (case, expected, got, pass) and writes a JSON summary.
 """
