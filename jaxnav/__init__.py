@@ -6,6 +6,7 @@ runs an exported policy on a robot with numpy alone, and importing it must not s
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import importlib.util
 import os
@@ -45,20 +46,64 @@ def _command_of(orig_argv: list[str]) -> str | None:
     return None
 
 
+class Stopped(KeyboardInterrupt):
+    """SIGINT or SIGTERM while a jaxnav command runs outside training's own handler: unwound
+    like Ctrl-C (every output whole or absent), then exit 128 + ``signum``."""
+
+    def __init__(self, signum: int = signal.SIGINT):
+        super().__init__(signum)
+        self.signum = signum
+
+
+def raise_stopped(signum: int, frame: Any) -> None:
+    """A signal handler raising ``Stopped(signum)``."""
+    raise Stopped(signum)
+
+
 def _stopped_while_starting(signum: int, frame: Any) -> None:
     if getattr(sys.modules.get("__main__"), "main", None) is not None:
-        signal.default_int_handler(signum, frame)  # the command runs: its KeyboardInterrupt
+        raise Stopped(signum)  # the command runs: unwound, then ``_stopped_hook``
     # still importing: nothing written yet, and an exception could land in a gc callback
     os.write(2, f"{_COMMAND}: stopped by {signal.Signals(signum).name}\n".encode())
     os._exit(128 + signum)
 
 
+def _stopped_hook(kind: type[BaseException], value: BaseException, tb: Any) -> None:
+    """``sys.excepthook`` of a command: a signal's ``KeyboardInterrupt`` that reached the top
+    (its outputs unwound) is one line and exit 128 + the signal, not a traceback."""
+    if not isinstance(value, KeyboardInterrupt):
+        return sys.__excepthook__(kind, value, tb)
+    signum = getattr(value, "signum", signal.SIGINT)
+    with contextlib.suppress(Exception):
+        sys.stdout.flush()
+    name = signal.Signals(signum).name
+    os.write(2, f"{_COMMAND}: stopped by {name}; no output was left half written\n".encode())
+    os._exit(128 + signum)
+
+
+def _stopped_unraisable(unraisable: Any) -> None:
+    """``sys.unraisablehook`` of a command: a ``Stopped`` raised inside a gc callback or a
+    ``__del__`` would be printed and lost (the command going on to its end): the signal is
+    sent again a moment later (from a thread: sent here, it would land in this hook), to land
+    in the command's own code."""
+    if isinstance(unraisable.exc_value, Stopped):
+        again = (os.getpid(), unraisable.exc_value.signum)
+        threading.Timer(0.05, os.kill, again).start()
+        return
+    _previous_unraisablehook(unraisable)
+
+
+_previous_unraisablehook = sys.unraisablehook
+
 # ``python -m jaxnav.<command>`` imports this package first ("-m" is sys.argv[0] until the
-# command's module runs): Ctrl-C while JAX imports, before the command's ``main`` is defined,
-# is one line and exit 130, not a traceback
+# command's module runs): SIGINT or SIGTERM while JAX imports, before the command's ``main`` is
+# defined, is one line and exit 130/143, not a traceback; later, the command unwinds first
 _COMMAND = _command_of(getattr(sys, "orig_argv", []))
 if sys.argv[:1] == ["-m"] and _COMMAND and threading.current_thread() is threading.main_thread():
-    signal.signal(signal.SIGINT, _stopped_while_starting)
+    for _signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(_signum, _stopped_while_starting)
+    sys.excepthook = _stopped_hook
+    sys.unraisablehook = _stopped_unraisable
 
 
 def __getattr__(name: str) -> Any:

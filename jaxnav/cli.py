@@ -105,6 +105,15 @@ def write_failed(prog: str, error: WriteFault) -> int:
     return EXIT_WRITE_FAULT
 
 
+MAX_SEED = 2**31 - 1  # as training's seed: jax.random.key takes a signed 32-bit one
+
+
+def check_seed(seed: int, flag: str = "--seed") -> None:
+    """``UsageError`` (one line) unless ``seed`` is in [0, ``MAX_SEED``]."""
+    if not 0 <= seed <= MAX_SEED:
+        raise UsageError(f"{flag} {seed}: must be in [0, {MAX_SEED}]")
+
+
 def parse_bool(text: str) -> bool:
     """An argparse ``type`` for true/false flags (also 1/0, yes/no, on/off)."""
     t = text.lower()
@@ -186,6 +195,9 @@ def add_policy_source(p: argparse.ArgumentParser, pretrained_help: str) -> None:
 
 
 def check_policy_source(args: argparse.Namespace) -> None:
-    """``UsageError`` unless exactly one of a run directory and ``--pretrained`` was given."""
+    """``UsageError`` unless exactly one of a run directory and ``--pretrained`` (a name) was
+    given."""
     if (args.run is None) == (args.pretrained is None):
         raise UsageError("give a run directory or --pretrained NAME, one of them")
+    if args.pretrained is not None and not args.pretrained.strip():
+        raise UsageError(f"--pretrained {args.pretrained!r}: empty; give a shipped policy's name")

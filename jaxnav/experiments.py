@@ -38,7 +38,16 @@ import numpy as np
 
 from jaxnav import run_dir
 from jaxnav.agents.dqn import AGENT_LABELS, PAPER_AGENTS
-from jaxnav.cli import HelpFormatter, Parser, UsageError, fail, one_line, parse_env_arg
+from jaxnav.cli import (
+    HelpFormatter,
+    Parser,
+    UsageError,
+    check_seed,
+    fail,
+    one_line,
+    parse_env_arg,
+    write_failed,
+)
 from jaxnav.config import TrainConfig
 from jaxnav.environment import Environment, EnvParams
 from jaxnav.evaluate import (
@@ -54,8 +63,9 @@ from jaxnav.evaluate import (
     t_interval,
 )
 from jaxnav.programs import enable_compilation_cache
-from jaxnav.registration import env_config, make
+from jaxnav.registration import env_config, make, registered_envs
 from jaxnav.runner import Progress, train_seeds
+from jaxnav.safe_io import WriteFault, atomic_output, write_text
 from jaxnav.train import Trainer
 
 AGENTS = PAPER_AGENTS  # name -> the TrainConfig fields that make the agent
@@ -318,13 +328,14 @@ def run_experiment(
             }
             print_rows(suite.name, rows)
     results["wall_s_before_figures"] = time.perf_counter() - t_start
-    np.savez_compressed(partial / "episodes.npz", **arrays)
+    with atomic_output(partial / "episodes.npz") as tmp:
+        np.savez_compressed(tmp, **arrays)
     run_dir.write_json(partial / "results.json", results)
-    (partial / "results.md").write_text(results_markdown(results))
+    write_text(partial / "results.md", results_markdown(results))
     plots.draw_all(partial, results, arrays)
     results["wall_s"] = time.perf_counter() - t_start
     run_dir.write_json(partial / "results.json", results)
-    (partial / "results.md").write_text(results_markdown(results))
+    write_text(partial / "results.md", results_markdown(results))
     run_dir.complete(partial, out)
     print(f"\nwall time {results['wall_s']:.0f}s; results in {out}")
     return results
@@ -495,6 +506,8 @@ def parse_family(text: str) -> Family:
     if not tokens:
         raise ValueError(f"--family {text!r}: give an env id, then KEY=VALUE overrides")
     env, *pairs = tokens
+    if env != "own" and env not in registered_envs():  # a typo, not a family to skip
+        raise ValueError(f"--family {text!r}: unknown env id {env!r} (or own)")
     kwargs = {}
     for pair in pairs:
         try:
@@ -601,8 +614,7 @@ def generalization_main(args: argparse.Namespace, command: str) -> int:
     try:
         if not 1 <= args.episodes <= 10**7:
             raise ValueError(f"--episodes {args.episodes}: must be in [1, 10000000]")
-        if args.seed < 0:
-            raise ValueError(f"--seed {args.seed}: must be non-negative")
+        check_seed(args.seed)
         if not 0 <= args.gifs <= 16:
             raise ValueError(f"--gifs {args.gifs}: must be in [0, 16]")
         configs = [run_dir.load_config(run) for run in args.runs]
@@ -631,7 +643,7 @@ def generalization_main(args: argparse.Namespace, command: str) -> int:
     out.mkdir(parents=True, exist_ok=True)
     run_dir.write_json(out / "results.json", results)
     table = generalization_markdown(results)
-    (out / "results.md").write_text(table)
+    write_text(out / "results.md", table)
     print(table)
     for fam in families:  # trajectories on each hand-drawn maze, where the run fits it
         maze_file = fam.env_kwargs.get("maze_file")
@@ -722,6 +734,15 @@ def parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the experiment ``argv`` (default: the command line's) names; the exit code."""
+    try:
+        return _main(argv)
+    except WriteFault as e:  # a full disk, a read-only directory: one line, nothing partial
+        return write_failed("jaxnav.experiments", e)
+    except ValueError as e:  # an output that is a link or a device, found when writing it
+        return fail("jaxnav.experiments", str(e))
+
+
+def _main(argv: Sequence[str] | None) -> int:
     prog = "jaxnav.experiments"
     try:
         args = parser().parse_args(argv)
@@ -735,8 +756,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         size = "quick" if args.quick else "smoke" if args.smoke else "paper"
         if not 2 <= args.seeds <= 4096:
             raise UsageError(f"--seeds {args.seeds}: must be in [2, 4096] (a CI needs 2)")
-        if args.seed < 0:
-            raise UsageError(f"--seed {args.seed}: must be non-negative")
+        check_seed(args.seed)
         if args.test_episodes is not None and not 1 <= args.test_episodes <= 10**6:
             raise UsageError(f"--test-episodes {args.test_episodes}: must be in [1, 1000000]")
         if args.experiment == "paper-grid":

@@ -6,14 +6,16 @@ scale and clip), the action meanings (speeds, or grid moves), the sensor configu
 field of view, range, frames, control period), the env id and kwargs, and where it came from.
 
 - ``npz``: the arrays under plain names and the metadata as JSON (``jaxnav.deploy.policy``
-  documents the layout and runs it with numpy alone).
+  documents the layout and runs it with numpy alone), with the SHA-256 of every array.
 - ``onnx``: the same network as an ONNX graph written from the trained parameters (MatMul,
   Add, LayerNormalization, Relu, the GRU's Sigmoid and Tanh, the dueling combination, ArgMax;
   input ``obs`` float32 [batch, obs_size], outputs ``q_values`` and ``action``; a network with
   memory also takes its state ``hidden`` float32 [batch, memory], zeros at an episode's
   start, and returns the next one, ``next_hidden``), the metadata as the model's
-  ``metadata_props["jaxnav"]`` (JSON). Needs the ``onnx`` package (``pip install
-  'jaxnav[export]'``); run it with ``onnxruntime`` or any ONNX runtime of opset 17.
+  ``metadata_props["jaxnav"]`` (JSON) and the SHA-256 of every initializer and of that
+  metadata as ``metadata_props["checksum"]``, checked by ``load_onnx``. Needs the ``onnx``
+  package (``pip install 'jaxnav[export]'``); run it with ``onnxruntime`` or any ONNX runtime
+  of opset 17.
 
 The grid's compact ``index`` observations stay compact: the exported network one-hot encodes
 the values ``network.onehot_sizes`` marks, as ``QNetwork`` does. A run trained with bfloat16
@@ -37,7 +39,15 @@ import numpy as np
 from jaxnav import run_dir
 from jaxnav.agents.dqn import QNetwork, check_input_fits
 from jaxnav.config import TrainConfig
-from jaxnav.deploy.policy import FORMAT, FORMAT_VERSION, GRU_GATES, Policy
+from jaxnav.deploy.policy import (
+    CHECKSUM_KEY,
+    FORMAT,
+    FORMAT_VERSION,
+    GRU_GATES,
+    Policy,
+    array_checksums,
+    verify_checksums,
+)
 from jaxnav.envs import grid_maze
 from jaxnav.envs.robot import env as robot_env
 from jaxnav.safe_io import WriteFault, atomic_output, check_output_file
@@ -505,19 +515,49 @@ def onnx_model(arrays: dict[str, np.ndarray], metadata: dict[str, Any]) -> Any:
         ir_version=ONNX_IR_VERSION,
         doc_string=f"jaxnav policy for {metadata['env_id']}: Q-values and the greedy action",
     )
-    helper.set_model_props(model, {METADATA_KEY: json.dumps(metadata)})
+    text = json.dumps(metadata)
+    checksums = json.dumps(array_checksums(onnx_arrays(model, text)))
+    helper.set_model_props(model, {METADATA_KEY: text, CHECKSUM_KEY: checksums})
     onnx.checker.check_model(model, full_check=True)
     return model
 
 
-def onnx_metadata(path: str | os.PathLike) -> dict[str, Any]:
-    """The jaxnav metadata of an exported ONNX model."""
+def onnx_arrays(model: Any, metadata: str) -> dict[str, np.ndarray]:
+    """Every initializer of ``model`` and its jaxnav ``metadata`` text, as the arrays its
+    checksums cover."""
+    from onnx import numpy_helper
+
+    arrays = {i.name: numpy_helper.to_array(i) for i in model.graph.initializer}
+    return {**arrays, METADATA_KEY: np.array(metadata)}
+
+
+def load_onnx(path: str | os.PathLike) -> tuple[Any, dict[str, Any]]:
+    """``(onnx.ModelProto, jaxnav metadata)`` of an exported ONNX policy, its initializers and
+    metadata checked against the checksums written with them (files exported before
+    checksums load unchecked); ``ValueError`` (one line naming the file) for a damaged one."""
     import onnx
 
-    props = {p.key: p.value for p in onnx.load(os.fspath(path)).metadata_props}
+    if not os.path.isfile(path):  # a FIFO would block, a directory is no model
+        raise ValueError(f"{path}: not a jaxnav policy file (not a regular file)")
+    try:
+        model = onnx.load(os.fspath(path))
+        props = {p.key: p.value for p in model.metadata_props}
+        arrays = onnx_arrays(model, props.get(METADATA_KEY, ""))
+    except Exception as e:  # noqa: BLE001 (protobuf raises several kinds for a damaged file)
+        raise ValueError(f"{path}: truncated or damaged ONNX file ({type(e).__name__})") from None
     if METADATA_KEY not in props:
         raise ValueError(f"{path}: not a jaxnav policy (no {METADATA_KEY!r} metadata)")
-    return json.loads(props[METADATA_KEY])
+    if CHECKSUM_KEY in props:
+        verify_checksums(path, arrays, props[CHECKSUM_KEY])
+    try:
+        return model, json.loads(props[METADATA_KEY])
+    except ValueError as e:
+        raise ValueError(f"{path}: not a jaxnav policy ({e})") from None
+
+
+def onnx_metadata(path: str | os.PathLike) -> dict[str, Any]:
+    """The jaxnav metadata of an exported ONNX model (checked as ``load_onnx``)."""
+    return load_onnx(path)[1]
 
 
 # ------------------------------------------------------------------ writing
@@ -532,7 +572,9 @@ def write_policy(
         payload = onnx_model(arrays, metadata).SerializeToString()  # built (and checked) first
     with atomic_output(out) as tmp, open(tmp, "wb") as f:
         if fmt == "npz":
-            np.savez_compressed(f, **arrays, metadata=np.array(json.dumps(metadata)))
+            stored = {**arrays, "metadata": np.array(json.dumps(metadata))}
+            checksums = np.array(json.dumps(array_checksums(stored)))
+            np.savez_compressed(f, **stored, **{CHECKSUM_KEY: checksums})
         else:
             f.write(payload)
     return out
@@ -622,7 +664,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         args = p.parse_args(argv)
         if not args.run.is_dir():
-            raise ValueError(f"{args.run}: not a run directory (no such directory)")
+            why = "not a directory" if os.path.lexists(args.run) else "no such directory"
+            raise ValueError(f"{args.run}: not a run directory ({why})")
         path, metadata = export_run(args.run, args.format, args.out, args.run_seed)
     except WriteFault as e:
         return write_failed(prog, e)

@@ -15,7 +15,6 @@ directory can be redrawn (``python -m jaxnav.experiments plot DIR``) or loaded i
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Any
 
@@ -28,6 +27,7 @@ import numpy as np  # noqa: E402
 from jaxnav import render  # noqa: E402
 from jaxnav.agents.dqn import AGENT_LABELS as LABELS  # noqa: E402
 from jaxnav.evaluate import t_interval  # noqa: E402
+from jaxnav.safe_io import atomic_output  # noqa: E402
 
 COLORS = {"dueling-double": "tab:blue", "simple": "tab:orange", "random": "tab:gray"}
 CURVES = (
@@ -241,8 +241,9 @@ def draw_all(directory: Path, results: dict[str, Any], arrays: dict[str, np.ndar
 
 
 def save(fig: Any, path: Path) -> None:
-    """Write ``fig`` to ``path`` whole (a temporary file, then renamed) and close it."""
-    tmp = path.with_name(f".{path.stem}.partial{path.suffix}")
-    fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    os.replace(tmp, path)
+    """Write ``fig`` to ``path`` through ``safe_io.atomic_output`` and close it."""
+    try:
+        with atomic_output(path) as tmp:
+            fig.savefig(tmp, dpi=110)
+    finally:
+        plt.close(fig)

@@ -30,6 +30,7 @@ import jax
 import numpy as np
 
 from jaxnav.host import package_version
+from jaxnav.safe_io import remove_quietly
 from jaxnav.train import Trainer, jit_training
 
 FORMAT = 1  # bump when what is stored changes
@@ -242,10 +243,14 @@ def _save(directory: Path | None, blob: dict[str, Any]) -> None:
     that cannot be written (read-only, full) is left alone: it only costs start-up time."""
     if directory is None:
         return
+    tmp = None
     try:
         directory.mkdir(parents=True, exist_ok=True)
+        # a name of its own: processes sharing the cache may write it at once
         with tempfile.NamedTemporaryFile(dir=directory, delete=False, suffix=".tmp") as f:
+            tmp = Path(f.name)
             pickle.dump(blob, f)
-        os.replace(f.name, directory / "programs.pkl")
+        os.replace(tmp, directory / "programs.pkl")
     except OSError:
-        pass
+        if tmp is not None:  # a full disk: no half-written entry left behind
+            remove_quietly(tmp)

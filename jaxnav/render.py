@@ -38,6 +38,7 @@ from jaxnav.cli import (
     add_env_args,
     add_policy_source,
     check_policy_source,
+    check_seed,
     env_from_args,
     fail,
     write_failed,
@@ -450,16 +451,22 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         args = parser().parse_args(argv)
         check_policy_source(args)
+        defaulted = args.out is None
         if args.out is None:  # a run's pictures belong with the run, not in the cwd
             args.out = Path(f"{args.pretrained}.gif") if args.run is None else args.run / "traj.gif"
         if not 1 <= args.episodes <= 16:
             raise UsageError(f"--episodes {args.episodes}: must be in [1, 16]")
         if args.out.suffix not in OUT_SUFFIXES:
             raise UsageError(f"--out {args.out}: must end in {', '.join(OUT_SUFFIXES)}")
-        check_output_file(args.out)  # a directory or a device is refused, not replaced
-        if args.seed < 0 or not 1 <= args.fps <= 100:
-            bad = f"--seed {args.seed}" if args.seed < 0 else f"--fps {args.fps}"
-            raise UsageError(f"{bad}: out of range")
+        try:
+            check_output_file(args.out)  # a directory or a device is refused, not replaced
+        except ValueError:
+            if defaulted and args.run is not None:  # RUN/traj.gif: name the run, not its path
+                run_dir.load_config(args.run)
+            raise
+        check_seed(args.seed)
+        if not 1 <= args.fps <= 100:
+            raise UsageError(f"--fps {args.fps}: out of range")
         if args.pretrained is not None:
             from jaxnav.export import load_pretrained
 

@@ -28,7 +28,7 @@ from jaxnav.checkpoints import manifest_damage, sha256_of, this_process_only, wr
 from jaxnav.config import TrainConfig, upgrade_saved
 from jaxnav.host import host_info, package_version
 from jaxnav.registration import env_config
-from jaxnav.safe_io import atomic_output
+from jaxnav.safe_io import WRITE_FAULTS, WriteFault, atomic_output, write_text
 from jaxnav.train import Trainer
 
 PACKAGES = ("jaxnav", "jax", "jaxlib", "flax", "optax", "chex", "orbax-checkpoint", "mujoco-mjx")
@@ -84,7 +84,8 @@ def check_completable(out: Path, flag: str = "--out") -> None:
 
 
 def check_writable(out: Path) -> None:
-    """Raise ``ValueError`` if a run cannot be written to ``out`` (checked before any work)."""
+    """Raise ``ValueError`` if a run cannot be written to ``out`` (checked before any work),
+    ``WriteFault`` where the machine refuses to write there (a read-only or full disk)."""
     check_completable(out)
     if os.path.lexists(partial_dir(out)):
         raise ValueError(
@@ -97,7 +98,9 @@ def check_writable(out: Path) -> None:
     try:  # really create a file: permission bits lie on read-only or special filesystems
         with tempfile.TemporaryFile(dir=parent):
             pass
-    except OSError:
+    except OSError as e:
+        if e.errno in WRITE_FAULTS:  # a read-only or full disk: the machine's, exit 4
+            raise WriteFault(parent, e.errno) from None
         raise ValueError(f"--out {out}: {parent} is not a writable directory") from None
 
 
@@ -198,8 +201,7 @@ def config_from_json(d: dict[str, Any]) -> TrainConfig:
 def write_json(path: Path, obj: Any) -> None:
     """Write atomically: a crash leaves the old file or the new one, never half of one
     (``WriteFault`` for a full disk and the like)."""
-    with atomic_output(path) as tmp:
-        tmp.write_text(json.dumps(obj, indent=2) + "\n")
+    write_text(path, json.dumps(obj, indent=2) + "\n")
 
 
 def write_metrics_csv(path: Path, metrics: dict[str, np.ndarray], seeds: list[int]) -> None:
@@ -298,7 +300,7 @@ def load_config(run: Path) -> TrainConfig:
         raise ValueError(f"{run}: not a run directory (no config.json)")
     try:
         return config_from_json(json.loads(path.read_text())["config"])
-    except (KeyError, TypeError, json.JSONDecodeError) as e:
+    except (KeyError, TypeError, ValueError) as e:  # ValueError: JSON, UTF-8, a value
         raise ValueError(f"{path}: unreadable run config ({e})") from None
 
 

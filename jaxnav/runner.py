@@ -260,10 +260,12 @@ def finish_run(
     """Evaluate the trained seeds, complete the run in ``partial`` and rename it to ``out``;
     ``times`` are the compile and train seconds and the run's start (``perf_counter``).
     ``Interrupted`` when ``signals`` (``Saving.signals``) has one before or after the
-    evaluation, which can take minutes: nothing is written, and ``--resume`` evaluates again
-    from the final checkpoint."""
+    evaluation, which can take minutes (nothing is written, and ``--resume`` evaluates again
+    from the final checkpoint), or after a step of the final save (``--resume`` saves again,
+    or only renames the finished run)."""
     config = trainer.config
-    _stop_if_signalled(signals, config.num_logs * config.steps_per_log)
+    steps = config.num_logs * config.steps_per_log
+    _stop_if_signalled(signals, steps)
     compile_s, train_s, t_start = times
     # wall-clock timing apart from metrics.csv, which is bitwise reproducible
     sps = progress.steps_per_second(metrics["env_steps"][0])
@@ -275,11 +277,12 @@ def finish_run(
         trained = evaluate_seeds(trainer, params, config.eval_episodes, seed=10_000)
         rand = evaluate_seeds(trainer, params, config.eval_episodes, 10_000, "random")
     eval_s = time.perf_counter() - t0
-    _stop_if_signalled(signals, config.num_logs * config.steps_per_log)
+    _stop_if_signalled(signals, steps)
 
     # complete the hidden sibling, then rename: a crash never leaves half a run at ``out``
     seeds = run_dir.seeds_of(config)
     run_dir.write_trained(partial, config, metrics, params)
+    _stop_if_signalled(signals, steps)  # a signal while saving: --resume saves again
     run_dir.write_metrics_csv(partial / "timing.csv", timing, seeds)
     summary = {
         "env": config.env,
@@ -294,6 +297,7 @@ def finish_run(
         "wall_s": time.perf_counter() - t_start,
     }
     run_dir.write_json(partial / "summary.json", summary)  # last: marks the run finished
+    _stop_if_signalled(signals, steps)  # finished: --resume only renames it
     run_dir.complete(partial, out)  # repeatable through --resume if stopped or refused
     if trained is None:
         print("no final evaluation (eval_episodes 0)")

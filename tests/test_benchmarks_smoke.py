@@ -273,3 +273,21 @@ def test_benchmarks_and_runs_describe_the_host_alike() -> None:
     for record in (machine, environment):
         assert {k: record[k] for k in host} == host
     assert machine["backend"] == environment["jax_backend"]
+
+
+def test_red_team_smoke() -> None:
+    """A handful of the red team's cases (benchmarks/red_team.py, run by hand: hundreds of
+    commands) pass: a damaged policy file, a NaN observation, a FIFO --out, a hostile flag."""
+    from benchmarks import red_team
+
+    picked = (
+        "Policy.load: a weight changed",
+        "Policy.act: NaN",
+        "--out fifo",
+        "--gamma 'nan'",
+        "ScanObservation: range_max NaN",
+    )
+    results = red_team.run_all(only=picked)
+    assert len(results) >= len(picked)
+    failed = [(r.area, r.name, r.why) for r in results if not r.passed]
+    assert not failed, failed

@@ -187,6 +187,92 @@ def test_a_damaged_policy_file_is_named_in_one_line(exported, tmp_path, capsys):
         assert err.count("\n") == 1 and str(path) in err and named in err, (name, err)
 
 
+@pytest.fixture(scope="module")
+def small_export(tmp_path_factory):
+    """``(arrays, metadata, npz path, onnx path)`` of a small random grid network."""
+    trainer = Trainer(CASES["grid-sensor"])
+    arrays = export.policy_arrays(trainer.network, random_params(trainer, jax.random.key(5)))
+    metadata = export.policy_metadata(trainer)
+    out = tmp_path_factory.mktemp("small")
+    npz = export.write_policy(arrays, metadata, out / "policy.npz", "npz")
+    return arrays, metadata, npz, export.write_policy(arrays, metadata, out / "policy.onnx", "onnx")
+
+
+def test_a_changed_weight_in_an_exported_npz_is_refused_naming_the_file_and_array(
+    small_export, tmp_path, capsys
+):
+    """A valid archive whose weights differ from the checksums written with them (a flipped
+    bit that the zip's own CRC cannot see, rewritten whole) is refused, never acted on."""
+    from jaxnav.deploy.policy import main as describe_main
+
+    _, _, npz, _ = small_export
+    with np.load(npz) as f:
+        stored = dict(f)
+    assert set(json.loads(str(stored["checksum"]))) == set(stored) - {"checksum"}
+    kernel = stored["dense0_kernel"].copy()
+    kernel.view(np.uint8)[7] ^= 0x10  # one bit of one weight
+    for name, changed in {
+        "flipped": {**stored, "dense0_kernel": kernel},
+        "missing": {k: v for k, v in stored.items() if k != "head_bias"},
+        "added": {**stored, "extra": np.zeros(2, np.float32)},
+        "checksums": {**stored, "checksum": np.array("not json")},
+    }.items():
+        path = tmp_path / f"{name}.npz"
+        np.savez_compressed(path, **changed)
+        with pytest.raises(ValueError, match=re.escape(f"{path}: damaged policy file")):
+            Policy.load(path)
+        assert describe_main([str(path)]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and str(path) in err, (name, err)
+    err_of_flip = str(pytest.raises(ValueError, Policy.load, tmp_path / "flipped.npz").value)
+    assert "array 'dense0_kernel' differs from its checksum" in err_of_flip
+    # a flipped byte anywhere in the file itself: one line naming it, whatever it hit
+    data = bytearray(npz.read_bytes())
+    for i in range(0, len(data), max(1, len(data) // 40)):
+        path = tmp_path / f"byte{i}.npz"
+        path.write_bytes(bytes(data[:i]) + bytes([data[i] ^ 0x01]) + bytes(data[i + 1 :]))
+        try:
+            Policy.load(path)
+        except ValueError as e:
+            assert str(e).startswith(f"{path}: ") and "\n" not in str(e)
+
+
+def test_policies_exported_before_checksums_still_load(small_export, tmp_path):
+    """Files written before the checksum existed: the npz without its ``checksum`` array and
+    the ONNX model without its ``checksum`` property load as before, unchecked."""
+    arrays, metadata, npz, onnx_path = small_export
+    old = tmp_path / "old.npz"
+    np.savez_compressed(old, **arrays, metadata=np.array(json.dumps(metadata)))
+    assert Policy.load(old).metadata == Policy.load(npz).metadata
+    model = onnx.load(str(onnx_path))
+    kept = [p for p in model.metadata_props if p.key != "checksum"]
+    assert len(kept) == len(model.metadata_props) - 1
+    del model.metadata_props[:]
+    model.metadata_props.extend(kept)
+    old_onnx = tmp_path / "old.onnx"
+    onnx.save(model, str(old_onnx))
+    assert export.onnx_metadata(old_onnx) == metadata
+
+
+def test_a_changed_weight_in_an_exported_onnx_is_refused_naming_the_file(small_export, tmp_path):
+    from onnx import numpy_helper
+
+    *_, onnx_path = small_export
+    model = onnx.load(str(onnx_path))
+    first = model.graph.initializer[0]
+    value = numpy_helper.to_array(first).copy()
+    value.reshape(-1)[0] += 1
+    first.CopyFrom(numpy_helper.from_array(value, first.name))
+    path = tmp_path / "changed.onnx"
+    onnx.save(model, str(path))
+    with pytest.raises(ValueError, match=re.escape(f"{path}: damaged policy file (array ")):
+        export.onnx_metadata(path)
+    truncated = tmp_path / "truncated.onnx"
+    truncated.write_bytes(onnx_path.read_bytes()[:100])
+    with pytest.raises(ValueError, match=re.escape(f"{truncated}: ")):
+        export.load_onnx(truncated)
+
+
 def test_grid_index_layout_reads_the_state():
     """The grid's layout names say which value is what: rebuilt from the state by name, the
     observation is the env's."""

@@ -12,17 +12,21 @@ import json
 import os
 import random
 import shutil
+import signal
 import stat
 import subprocess
 import sys
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
+import jax
 import numpy as np
 import pytest
 from conftest import TINY_FLAGS  # pytest puts tests/ on sys.path
 
 from jaxnav import checkpoints, run_dir, runner
+from jaxnav.train import Trainer
 from jaxnav.train.__main__ import main as train_main
 
 TINY = [*TINY_FLAGS, "--total-timesteps", "128", "--eval-episodes", "2", "--checkpoint-every", "32"]
@@ -44,11 +48,17 @@ def tree(path: Path) -> list[Path]:
 
 
 @pytest.fixture(scope="module")
-def reference(tmp_path_factory) -> str:
-    """metrics.csv of the tiny run, uninterrupted."""
+def reference_run(tmp_path_factory) -> Path:
+    """The tiny run, uninterrupted."""
     out = tmp_path_factory.mktemp("ref") / "run"
     assert train_main([*TINY, "--out", str(out)]) == 0
-    return (out / "metrics.csv").read_text()
+    return out
+
+
+@pytest.fixture(scope="module")
+def reference(reference_run) -> str:
+    """metrics.csv of the tiny run, uninterrupted."""
+    return (reference_run / "metrics.csv").read_text()
 
 
 def assert_complete(out: Path, reference: str) -> None:
@@ -147,6 +157,50 @@ def test_kill_at_each_step_of_finishing_then_resume_completes(
     assert_complete(out, reference)
     assert train_main(["--resume", str(out)]) == 2  # complete: nothing to resume
     assert "is complete" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "signum, moment",
+    [
+        (signal.SIGTERM, "write_trained"),
+        (signal.SIGINT, "write_trained"),
+        (signal.SIGTERM, "summary"),
+    ],
+)
+def test_signal_during_the_final_save_exits_128_plus_it_and_resume_is_bitwise(
+    signum, moment, tmp_path, capsys, monkeypatch, reference_run
+):
+    """A signal while params/ or summary.json is being written was ignored until the run
+    finished: it now stops after that step, and --resume completes the same run."""
+    out = tmp_path / "run"
+    target = (run_dir, "write_trained" if moment == "write_trained" else "write_json")
+    original = getattr(*target)
+
+    def signalled_while_saving(path, *args, **kwargs):
+        if moment == "write_trained" or Path(path).name == "summary.json":
+            os.kill(os.getpid(), signum)  # train's handler records it, the save goes on
+        return original(path, *args, **kwargs)
+
+    monkeypatch.setattr(*target, signalled_while_saving)
+    capsys.readouterr()
+    assert train_main([*TINY, "--out", str(out)]) == 128 + signum
+    last = capsys.readouterr().err.strip().splitlines()[-1]
+    name = signal.Signals(signum).name
+    assert last == (
+        f"jaxnav.train: stopped by {name} at env step 128 (checkpoint saved); "
+        f"continue with: python -m jaxnav.train --resume {out}"
+    ), last
+    partial = run_dir.partial_dir(out)
+    assert not out.exists() and (partial / "params").is_dir()
+    assert (partial / "summary.json").exists() == (moment == "summary")
+    monkeypatch.setattr(*target, original)
+    assert train_main(["--resume", str(out)]) == 0
+    capsys.readouterr()
+    assert_complete(out, reference_run.joinpath("metrics.csv").read_text())
+    trainer = Trainer(run_dir.load_config(out))
+    mine, ref = (run_dir.load_trained_params(r, trainer) for r in (out, reference_run))
+    for a, b in zip(jax.tree.leaves(mine), jax.tree.leaves(ref), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
 # ------------------------------------------------------------------ one writer at a time
@@ -429,9 +483,7 @@ def test_evaluate_render_and_export_refuse_outputs_that_are_not_regular_files(
 
 
 # ------------------------------------------------------------------ a finished run's params/
-def test_a_flipped_byte_in_any_file_of_params_is_refused_naming_the_file(
-    trained, tmp_path, capsys
-):
+def test_a_flipped_byte_in_any_file_of_params_is_refused_naming_the_file(trained, tmp_path, capsys):
     from jaxnav.evaluate.__main__ import main as evaluate_main
     from jaxnav.export import main as export_main
 
@@ -474,15 +526,18 @@ def test_a_damaged_metadata_of_a_run_saved_without_checksums_is_one_line(
 # ------------------------------------------------------------------ a disk that refuses writes
 @contextlib.contextmanager
 def small_filesystem(
-    where: Path, state: str, size: str = "256k", free: int = 0
+    where: Path, state: str, size: str = "256k", free: int = 0, before: Any = None
 ) -> Iterator[Path]:
     """A real tmpfs of ``size`` at ``where``: ``full`` (the file ``filler`` takes all but
-    ``free`` bytes) or ``read-only`` (remounted so); root only, else the test is skipped."""
+    ``free`` bytes) or ``read-only`` (remounted so), after ``before(where)`` has put files
+    there; root only, else the test is skipped."""
     where.mkdir()
     mount = ["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(where)]
     if subprocess.run(mount, capture_output=True).returncode != 0:
         pytest.skip("mounting a tmpfs needs root")
     try:
+        if before is not None:
+            before(where)
         if state == "full":
             fd = os.open(where / "filler", os.O_WRONLY | os.O_CREAT)
             try:
@@ -522,6 +577,116 @@ def test_evaluate_render_and_export_on_a_disk_that_refuses_writes_are_one_line(
             err = one_line_error(capsys, 4, command(str(disk / name)))
             assert err.startswith("jaxnav.") and f"cannot write {disk / name}: {why}" in err
             assert nodes(disk) == before, name  # nothing partial left behind
+
+
+@pytest.mark.parametrize("state", ["full", "read-only"])
+def test_experiments_plot_and_pretrained_add_on_a_disk_that_refuses_writes_are_one_line(
+    state, trained, tmp_path, capsys, monkeypatch
+):
+    """The writers behind ``experiments plot`` and ``pretrained add`` (figures, the copied
+    policy, the manifest) went around ``safe_io``: a raw OSError and a partial file left."""
+    from jaxnav import pretrained
+    from jaxnav.experiments import main as experiments_main
+    from jaxnav.pretrained import __main__ as pretrained_cli
+    from jaxnav.pretrained import check
+
+    def put(where: Path) -> None:
+        shutil.copytree(trained, where / "run")
+        (where / "pretrained").mkdir()
+        shutil.copy(pretrained.MANIFEST, where / "pretrained" / "manifest.json")
+
+    policy = tmp_path / "policy.npz"
+    shutil.copy(pretrained.path("gridmaze-dqn"), policy)
+    why = {"full": "no space left on device", "read-only": "read-only file system"}[state]
+    with small_filesystem(tmp_path / "disk", state, size="4m", before=put) as disk:
+        folder = disk / "pretrained"
+        for module in (pretrained, check, pretrained_cli):
+            monkeypatch.setattr(module, "HERE", folder, raising=False)
+        for module in (pretrained, check):
+            monkeypatch.setattr(module, "MANIFEST", folder / "manifest.json")
+        monkeypatch.setattr(check, "measure", lambda *args: {"success_rate": 1.0})
+        files = lambda: [n for n in nodes(disk) if not stat.S_ISDIR(n[1])]  # noqa: E731
+        before = files()
+        err = one_line_error(capsys, 4, experiments_main(["plot", str(disk / "run")]))
+        assert f"cannot write {disk / 'run' / 'training_curves.png'}: {why}" in err, err
+        argv = ["add", "new-policy", str(policy), "--command", "c"]
+        err = one_line_error(capsys, 4, pretrained_cli.main(argv))
+        assert f"cannot write {folder}" in err and why in err, err
+        assert files() == before  # nothing partial, nothing copied in
+
+
+def test_no_writer_replaces_a_link_or_follows_one_planted_at_its_temporary_file(
+    trained, tmp_path, capsys
+):
+    from jaxnav import safe_io
+    from jaxnav.experiments import main as experiments_main
+
+    run = tmp_path / "run"
+    shutil.copytree(trained, run)
+    (tmp_path / "kept").write_text("kept")
+    (run / "training_curves.png").symlink_to(tmp_path / "kept")
+    err = one_line_error(capsys, 2, experiments_main(["plot", str(run)]))
+    assert f"{run / 'training_curves.png'}: is a symbolic link" in err, err
+    assert (run / "training_curves.png").is_symlink()
+    # a link at the temporary file is removed, not written through
+    (run / "training_curves.png").unlink()
+    (run / ".training_curves.partial.png").symlink_to(tmp_path / "kept")
+    assert experiments_main(["plot", str(run)]) == 0
+    assert (tmp_path / "kept").read_text() == "kept"
+    assert (run / "training_curves.png").read_bytes()[:4] == b"\x89PNG"
+    assert not os.path.lexists(run / ".training_curves.partial.png")
+    # a FIFO appearing at the path while the file is written is not replaced
+    fifo = tmp_path / "out.json"
+    with pytest.raises(ValueError, match="is a FIFO"):
+        with safe_io.atomic_output(fifo) as tmp:
+            tmp.write_text("{}")
+            os.mkfifo(fifo)
+    assert stat.S_ISFIFO(fifo.lstat().st_mode) and not list(tmp_path.glob(".out*"))
+
+
+def test_a_signal_cutting_a_writer_is_not_hidden_by_the_error_its_cleanup_raises(tmp_path):
+    """Ctrl-C inside np.savez: zipfile's close on the way out raised "seek of closed file",
+    which export reported as bad input (exit 2) in place of the signal (exit 130)."""
+    from jaxnav import Stopped, safe_io
+
+    out = tmp_path / "policy.npz"
+    with pytest.raises(Stopped):
+        with safe_io.atomic_output(out) as tmp:
+            try:
+                tmp.write_bytes(b"half of it")
+                raise Stopped(signal.SIGINT)  # as the handler raises it
+            finally:
+                raise ValueError("seek of closed file")  # as zipfile's close then does
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_programs_cache_write_refused_leaves_no_temporary_file(tmp_path, monkeypatch):
+    """The traced-programs cache is best effort (a refused write costs only start-up time),
+    but a full disk left its half-written temporary file in the cache directory."""
+    from jaxnav import programs
+
+    def full(obj, f):
+        f.write(b"half of it")
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(programs.pickle, "dump", full)
+    programs._save(tmp_path / "cache", {"entry": 1})
+    assert list((tmp_path / "cache").iterdir()) == []
+
+
+def test_a_new_run_or_results_on_a_read_only_disk_exit_4_naming_it(tmp_path, capsys):
+    """A read-only --out was refused as bad input (exit 2, "not a writable directory"): the
+    machine's refusal is exit 4, as for every other writer."""
+    from jaxnav.experiments import main as experiments_main
+
+    with small_filesystem(tmp_path / "disk", "read-only") as disk:
+        err = one_line_error(capsys, 4, train_main([*TINY, "--out", str(disk / "run")]))
+        assert err == f"jaxnav.train: error: cannot write {disk}: read-only file system; " + (
+            "remount it writable or write elsewhere"
+        ), err
+        argv = ["paper-grid", "--smoke", "--out", str(disk / "results")]
+        err = one_line_error(capsys, 4, experiments_main(argv))
+        assert f"cannot write {disk}: read-only file system" in err, err
 
 
 def test_resume_of_a_run_whose_directory_is_read_only_is_one_line_then_completes(

@@ -91,9 +91,7 @@ def test_a_maze_file_too_large_for_its_geodesic_table_is_refused_before_it_is_bu
         (["--maze-file", "m.txt", "--env-arg", "maze_file=n.txt"], "both given"),
     ],
 )
-def test_empty_env_repeated_env_arg_and_empty_maze_file_are_refused(
-    argv, want, tmp_path, capsys
-):
+def test_empty_env_repeated_env_arg_and_empty_maze_file_are_refused(argv, want, tmp_path, capsys):
     """Each was a silent choice: the default env, the last value, the current directory."""
     out = tmp_path / "r"
     err = one_line_error(capsys, 2, train_main([*TINY_FLAGS, *argv, "--out", str(out)]))
@@ -172,9 +170,7 @@ def test_float32_overflow_and_int_bools_on_the_command_line_are_one_line(arg, tm
 
 
 # ------------------------------------------------------------------ 4. memory
-def test_per_interval_metrics_too_large_for_memory_are_refused_before_the_run_dir(
-    tmp_path, capsys
-):
+def test_per_interval_metrics_too_large_for_memory_are_refused_before_the_run_dir(tmp_path, capsys):
     out = tmp_path / "r"
     big = ["--num-seeds", "4096", "--log-interval", "1", "--num-envs", "1", "--replay-ratio", "8"]
     argv = [*TINY_FLAGS, *big, "--total-timesteps", "2000000000", "--out", str(out)]
@@ -351,19 +347,23 @@ def test_ctrl_c_while_the_command_imports_is_one_line_exit_130(tmp_path):
 
 
 @pytest.mark.parametrize("moment", ["building the env", "the run directory written"])
-def test_ctrl_c_before_training_began_is_one_line_exit_130_and_resumable(
-    moment, tmp_path, capsys, monkeypatch
+@pytest.mark.parametrize("signame", ["SIGINT", "SIGTERM"])
+def test_ctrl_c_or_sigterm_before_training_began_is_one_line_128_plus_it_and_resumable(
+    moment, signame, tmp_path, capsys, monkeypatch
 ):
+    """SIGTERM then killed the process without a word (Ctrl-C was answered)."""
     import os
     import signal
 
     from jaxnav import runner
     from jaxnav.train import __main__ as train_cli
 
+    signum = getattr(signal, signame)
+
     def then_ctrl_c(real):
         def call(*args, **kwargs):
             result = real(*args, **kwargs)
-            os.kill(os.getpid(), signal.SIGINT)  # as the terminal sends it
+            os.kill(os.getpid(), signum)  # as the terminal or a scheduler sends it
             return result
 
         return call
@@ -374,8 +374,8 @@ def test_ctrl_c_before_training_began_is_one_line_exit_130_and_resumable(
         monkeypatch.setattr(runner, "open_run", then_ctrl_c(runner.open_run))
     out = tmp_path / "run"
     argv = [*TINY_FLAGS, "--total-timesteps", "64", "--eval-episodes", "0", "--out", str(out)]
-    err = one_line_error(capsys, 130, train_main(argv))
-    assert err.startswith("jaxnav.train: stopped by SIGINT before training began; ")
+    err = one_line_error(capsys, 128 + signum, train_main(argv))
+    assert err.startswith(f"jaxnav.train: stopped by {signame} before training began; ")
     monkeypatch.undo()
     if moment == "building the env":
         assert err.endswith("nothing was trained or written") and not list(tmp_path.iterdir())
@@ -384,6 +384,125 @@ def test_ctrl_c_before_training_began_is_one_line_exit_130_and_resumable(
         assert err.endswith(f"continue with: python -m jaxnav.train --resume {out}")
         assert train_main(["--resume", str(out)]) == 0
     assert (out / "summary.json").is_file()
+
+
+def test_sigint_or_sigterm_while_evaluate_runs_is_one_line_and_writes_nothing(trained, tmp_path):
+    """Commands without training's handler: a SIGTERM killed them without a word, a Ctrl-C
+    gave a KeyboardInterrupt traceback; now they unwind (nothing half written), then one
+    line and 128 + the signal."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        out = tmp_path / f"eval-{signum}.json"
+        argv = [str(trained), "--episodes", "10000000", "--out", str(out)]
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "jaxnav.evaluate", *argv],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        )
+        time.sleep(4)  # importing, compiling or evaluating: each answered alike
+        proc.send_signal(signum)
+        _, err = proc.communicate(timeout=120)
+        name = signal.Signals(signum).name
+        assert proc.returncode == 128 + signum, err
+        assert err.count("\n") == 1 and err.startswith(f"jaxnav.evaluate: stopped by {name}"), err
+        assert not out.exists() and not list(tmp_path.glob(".*partial*"))
+
+
+def test_a_signal_raised_inside_a_gc_callback_is_sent_again_not_lost(monkeypatch):
+    """A SIGTERM whose exception landed in XLA's gc callback was printed as "Exception
+    ignored" and lost: the command ran to its end, exit 0. The command's unraisable hook sends
+    the signal again, so it lands in the command's own code."""
+    import signal
+    import time
+
+    import jaxnav
+
+    class Collected:
+        def __del__(self):
+            jaxnav.raise_stopped(signal.SIGTERM, None)  # as the handler, inside a __del__
+
+    monkeypatch.setattr("sys.unraisablehook", jaxnav._stopped_unraisable)
+    previous = signal.signal(signal.SIGTERM, jaxnav.raise_stopped)
+    try:
+        with pytest.raises(jaxnav.Stopped) as e:
+            Collected()  # collected at once: its exception goes to the unraisable hook
+            time.sleep(5)  # the signal sent again ends the wait
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    assert e.value.signum == signal.SIGTERM
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["evaluate", "--seed", "1" * 30],
+        ["render", "--seed", str(2**31)],
+        ["experiments", "generalization", "RUN", "--seed", "1" * 30],
+        ["experiments", "generalization", "RUN", "--family", "NoSuchEnv-v0 size=5"],
+    ],
+)
+def test_seeds_beyond_32_bits_and_unknown_family_envs_are_one_line(argv, trained, tmp_path, capsys):
+    """A seed too large for jax.random.key was an OverflowError traceback; a family of an
+    unknown env id was skipped with exit 0."""
+    from jaxnav.evaluate.__main__ import main as evaluate_main
+    from jaxnav.experiments import main as experiments_main
+    from jaxnav.render import main as render_main
+
+    main = {"evaluate": evaluate_main, "render": render_main, "experiments": experiments_main}
+    command, *rest = argv
+    rest = [str(trained) if a == "RUN" else a for a in rest]
+    if command != "experiments":
+        rest = [str(trained), *rest]
+    out = tmp_path / ("out.png" if command == "render" else "out")
+    err = one_line_error(capsys, 2, main[command]([*rest, "--out", str(out)]))
+    assert ("must be in [0, 2147483647]" in err) or ("unknown env id 'NoSuchEnv-v0'" in err), err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    "case", ["render missing run", "render empty pretrained", "export run a file",
+             "evaluate config not UTF-8", "pretrained add a FIFO"],
+)  # fmt: skip
+def test_errors_name_the_input_at_fault_not_a_path_made_from_it(case, trained, tmp_path, capsys):
+    """The red team's misattributed lines: a missing run blamed on render's default --out,
+    --pretrained '' on --out '.gif', a file as RUN called "no such directory", a config.json
+    that is not UTF-8 without its path, a FIFO given to pretrained add "no such file"."""
+    import os
+
+    from jaxnav.evaluate.__main__ import main as evaluate_main
+    from jaxnav.export import main as export_main
+    from jaxnav.pretrained.__main__ import main as pretrained_main
+    from jaxnav.render import main as render_main
+
+    missing, afile, fifo = tmp_path / "missing", tmp_path / "afile", tmp_path / "p.npz"
+    afile.write_text("x")
+    os.mkfifo(fifo)
+    run = tmp_path / "run"
+    shutil.copytree(trained, run)
+    (run / "config.json").write_bytes(b"\x00\xffgarbage")
+    command, argv, want = {
+        "render missing run": (render_main, [str(missing)], f"{missing}: not a run directory"),
+        "render empty pretrained": (
+            render_main, ["--pretrained", ""], "--pretrained '': empty; give a shipped"
+        ),
+        "export run a file": (export_main, [str(afile)], f"{afile}: not a run directory (not a"),
+        "evaluate config not UTF-8": (
+            evaluate_main, [str(run)], f"{run / 'config.json'}: unreadable run config"
+        ),
+        "pretrained add a FIFO": (
+            pretrained_main, ["add", "x", str(fifo), "--command", "c"],
+            f"{fifo}: not a regular file",
+        ),
+    }[case]  # fmt: skip
+    err = one_line_error(capsys, 2, command(argv))
+    assert want in err, err
 
 
 # ------------------------------------------------------------------ 8. the programs cache
@@ -420,3 +539,70 @@ def test_a_cache_directory_others_can_write_is_not_used_and_nothing_is_unpickled
     (warning,) = [line for line in err.splitlines() if "JAXNAV_CACHE_DIR" in line]
     assert f"{root} is writable by other users (mode 777)" in warning, warning
     assert "not used" in warning
+
+
+# ------------------------------------------------------------------ 8. the deployment layer
+@pytest.fixture(scope="module")
+def laser_policy_metadata() -> dict:
+    from jaxnav import export
+    from jaxnav.config import TrainConfig
+    from jaxnav.train import Trainer
+
+    config = TrainConfig(
+        env="RobotSimple-v0", env_kwargs={"backend": "kinematic"}, hidden_sizes=(8,)
+    )
+    return export.policy_metadata(Trainer(config))
+
+
+def test_scan_values_that_used_to_crash_or_pass_are_refused_in_one_line(laser_policy_metadata):
+    """A range_max given as text crashed inside numpy; 2-D ranges, a negative beam width and
+    a pose or goal beyond float32 (a frame or unit mix-up) gave observations of inf."""
+    from jaxnav.deploy.sensors import LaserScan, ScanObservation
+
+    scan = dict(
+        angle_min=-3.14159, angle_increment=2 * 3.14159 / 360, range_min=0.1, range_max=10.0
+    )
+    ranges = [1.0] * 360
+    build = ScanObservation(laser_policy_metadata)
+    at, goal = (1.0, 1.0, 0.0), (2.0, 2.0)
+    cases = {
+        "range_max='10'": (LaserScan(**{**scan, "range_max": "x"}, ranges=ranges), at, goal),
+        "ranges of shape (1, 360)": (LaserScan(**scan, ranges=[ranges]), at, goal),
+        "robot_x=1e+300": (LaserScan(**scan, ranges=ranges), (1e300, 1.0, 0.0), goal),
+        "goal_x=-1e+40": (LaserScan(**scan, ranges=ranges), at, (-1e40, 2.0)),
+    }
+    for name, args in cases.items():
+        want = name.split("=")[0] if name.startswith("range_max") else name
+        with pytest.raises(ValueError, match=re.escape(want)) as e:
+            build(*args)
+        assert "\n" not in str(e.value)
+    narrow = ScanObservation(laser_policy_metadata, beam_width=-0.1)
+    with pytest.raises(ValueError, match=r"beam_width=-0.1: must be a width >= 0"):
+        narrow(LaserScan(**scan, ranges=ranges), at, goal)
+    # range_max=inf stays allowed, as documented
+    obs = build(LaserScan(**{**scan, "range_max": float("inf")}, ranges=ranges), at, goal)
+    assert obs.dtype.name == "float32" and bool((abs(obs) < 1e6).all())
+
+
+def test_policy_refuses_observations_beyond_float32_or_not_real():
+    """1e39 is finite in float64 and inf in the float32 the network computes in: its action
+    came from inf Q-values; complex numbers lost their imaginary part with a warning."""
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    from jaxnav import export
+    from jaxnav.config import TrainConfig
+    from jaxnav.deploy.policy import Policy
+    from jaxnav.train import Trainer
+
+    trainer = Trainer(TrainConfig(env="GridMaze-v0", env_kwargs={"size": 5}, hidden_sizes=(8,)))
+    params = trainer.network.init(jax.random.key(0), jnp.zeros((1, trainer.obs_size)))
+    policy = Policy(export.policy_arrays(trainer.network, params), export.policy_metadata(trainer))
+    n = policy.obs_size
+    with pytest.raises(ValueError, match=r"observation\[3\]=1e\+39: beyond float32"):
+        policy.act(np.r_[np.zeros(3), 1e39, np.zeros(n - 4)])
+    for bad in (np.zeros(n, complex), np.array(["1"] * n), [None] * n):
+        with pytest.raises(ValueError, match="observation: must be real numbers"):
+            policy.act(bad)
+    assert policy.act(np.zeros(n, np.int64)) in range(4)  # integers and bools are numbers

@@ -3,7 +3,8 @@
 Needs numpy and the standard library only (no JAX), so it runs on a robot's computer; the
 file can be copied there on its own. ``python -m jaxnav.export RUN --format npz`` writes the
 npz: the network's arrays under the names below and its metadata as JSON in ``metadata``
-(a 0-d string array, readable without pickle)::
+(a 0-d string array, readable without pickle) and the SHA-256 of every other array as JSON in
+``checksum`` (``array_checksums``; files exported without one load unchecked)::
 
     dense{i}_kernel [in, out], dense{i}_bias [out]       hidden layer i (i = 0, 1, ...)
     norm{i}_scale [out], norm{i}_bias [out]              its LayerNorm, if the network has one
@@ -23,9 +24,11 @@ then per hidden layer ``x @ kernel + bias``, LayerNorm (``(x - mean) / sqrt(var 
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
+import stat
 import sys
 import zipfile
 import zlib
@@ -38,6 +41,39 @@ FORMAT = "jaxnav-policy"
 FORMAT_VERSION = 2  # 2: a network with memory (feed-forward ones are still written as 1)
 # the GRU cell's weights by gate: whether it has a bias (flax's GRUCell, input then state)
 GRU_GATES = {"ir": True, "iz": True, "in": True, "hr": False, "hz": False, "hn": True}
+CHECKSUM_KEY = "checksum"  # the npz array (and ONNX metadata_props key) of the checksums
+
+
+def array_checksums(arrays: dict[str, np.ndarray]) -> dict[str, str]:
+    """The SHA-256 of each array (its dtype, shape and bytes), by name: written with an
+    exported policy, compared by ``verify_checksums`` when it is loaded."""
+    sums = {}
+    for name in sorted(arrays):
+        a = np.ascontiguousarray(arrays[name])
+        digest = hashlib.sha256(f"{a.dtype.str} {a.shape} ".encode())
+        digest.update(a.tobytes())
+        sums[name] = digest.hexdigest()
+    return sums
+
+
+def verify_checksums(path: str | os.PathLike, arrays: dict[str, np.ndarray], text: str) -> None:
+    """``ValueError`` (one line naming ``path`` and the array) unless ``arrays`` match the
+    checksums ``text`` (``array_checksums`` as JSON) written with them."""
+    try:
+        written = json.loads(text)
+    except ValueError:
+        written = None
+    if not isinstance(written, dict):
+        raise ValueError(f"{path}: damaged policy file (its checksums are unreadable)")
+    got = array_checksums(arrays)
+    for name in sorted(set(written) | set(got)):
+        if written.get(name) != got.get(name):
+            what = "differs from its checksum"
+            if name not in got or name not in written:
+                what = "is missing" if name not in got else "is not in its checksums"
+            raise ValueError(
+                f"{path}: damaged policy file (array {name!r} {what}); export the policy again"
+            )
 
 
 def expand_onehot(obs: np.ndarray, onehot_sizes: Sequence[int]) -> np.ndarray:
@@ -81,17 +117,23 @@ def step(
     memory reads the state ``hidden[..., memory]`` of the previous step (None: zeros, an
     episode's start); one without returns None for the state."""
     try:
-        obs = np.asarray(obs, np.float64)
+        obs = np.asarray(obs)
+        if obs.dtype.kind not in "biuf":  # complex, strings, objects: no silent conversion
+            raise TypeError
+        obs = obs.astype(np.float64)
     except (TypeError, ValueError):
-        raise ValueError("observation: must be numbers") from None
+        raise ValueError("observation: must be real numbers") from None
     if obs.ndim == 0 or obs.shape[-1] != network["obs_size"]:
         raise ValueError(
             f"observation of shape {obs.shape}; the policy reads {network['obs_size']} values"
         )
-    if not np.isfinite(obs).all():  # no action from a NaN or an infinite input
-        where = tuple(int(i) for i in np.argwhere(~np.isfinite(obs))[0])
+    bad = ~(np.abs(obs) <= np.finfo(np.float32).max)  # NaN, inf, or inf once float32
+    if bad.any():  # no action from a NaN or an infinite input
+        where = tuple(int(i) for i in np.argwhere(bad)[0])
         index = ", ".join(map(str, where))
-        raise ValueError(f"observation[{index}]={float(obs[where])}: not finite")
+        value = float(obs[where])
+        why = "not finite" if not math.isfinite(value) else "beyond float32"
+        raise ValueError(f"observation[{index}]={value}: {why}")
     onehot = network.get("onehot_sizes")
     x = obs.astype(np.float32) if onehot is None else expand_onehot(obs, onehot)
     eps = np.float32(network.get("layer_norm_epsilon", 1e-6))
@@ -233,17 +275,25 @@ class Policy:
     def load(cls, path: str | os.PathLike) -> Policy:
         """The policy in the npz file ``path`` (``python -m jaxnav.export --format npz``);
         ``ValueError`` (one line naming the file) for a file that is not one, or is damaged
-        or truncated."""
+        or truncated (its arrays checked against the checksums written with them)."""
+        if not stat.S_ISREG(os.stat(path).st_mode):  # reading a FIFO would block forever
+            raise ValueError(f"{path}: not a jaxnav policy file (not a regular file)")
         with open(path, "rb") as f:
             if f.read(4) != b"PK\x03\x04":  # an npz is a zip archive
                 raise ValueError(f"{path}: not a jaxnav policy file (not an npz archive)")
         try:
             with np.load(path, allow_pickle=False) as f:
                 arrays = {k: f[k] for k in f.files}
-            metadata = json.loads(str(arrays.pop("metadata", "null")))
         except (zipfile.BadZipFile, EOFError, zlib.error) as e:
             raise ValueError(f"{path}: truncated or damaged policy file ({e})") from None
-        except ValueError as e:  # an object array, unreadable JSON
+        except ValueError as e:  # an object array
+            raise ValueError(f"{path}: not a jaxnav policy file ({e})") from None
+        checksums = arrays.pop(CHECKSUM_KEY, None)  # None: exported before checksums
+        if checksums is not None:
+            verify_checksums(path, arrays, str(checksums))
+        try:
+            metadata = json.loads(str(arrays.pop("metadata", "null")))
+        except ValueError as e:
             raise ValueError(f"{path}: not a jaxnav policy file ({e})") from None
         if metadata is None:
             raise ValueError(f"{path}: not a jaxnav policy file (no metadata)")

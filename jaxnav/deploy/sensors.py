@@ -94,12 +94,13 @@ def check_finite(
     return floats
 
 
-def check_scan(scan: LaserScan) -> None:
+def check_scan(scan: LaserScan) -> tuple[float, float, float, float]:
     """``ValueError`` (one line, naming the field and its value) for a scan whose angles or
     range limits make no sense, each of which would read walls as free space or worse:
     angles must be finite, the increment nonzero and at most a full turn, ``range_min`` finite
-    and non-negative, ``range_max`` above it (+inf allowed: every finite reading counts)."""
-    check_finite("angle_min", scan.angle_min, 1)
+    and non-negative, ``range_max`` above it (+inf allowed: every finite reading counts).
+    Returns ``(angle_min, angle_increment, range_min, range_max)`` as floats."""
+    (angle_min,) = check_finite("angle_min", scan.angle_min, 1)
     (increment,) = check_finite("angle_increment", scan.angle_increment, 1)
     if increment == 0 or abs(increment) > 2 * math.pi:
         raise ValueError(f"angle_increment={increment!r}: must be nonzero and at most 2*pi in size")
@@ -112,6 +113,7 @@ def check_scan(scan: LaserScan) -> None:
         raise ValueError(f"range_max={scan.range_max!r}: must be a number") from None
     if not high > low:  # NaN too
         raise ValueError(f"range_max={high!r}: must be above range_min={low!r}")
+    return angle_min, increment, low, high
 
 
 def check_scan_size(scan: LaserScan, size: int) -> None:
@@ -166,23 +168,33 @@ def resample_scan(
     from ``scan`` (see the module docstring for readings, mounting and windows); ``inf``
     where nothing is within the scan's range. ``ValueError`` for a beam outside the scan's
     field of view unless ``fill_uncovered`` gives its range."""
-    check_scan(scan)
-    check_finite("mount_yaw", mount_yaw)
-    check_finite("beam_width", beam_width)
-    if fill_uncovered is not None and not float(fill_uncovered) >= 0:
-        raise ValueError(f"fill_uncovered={fill_uncovered!r}: must be a range >= 0 (or inf)")
+    angle_min, increment, range_min, range_max = check_scan(scan)
+    (mount_yaw,) = check_finite("mount_yaw", mount_yaw, 1)
+    (beam_width,) = check_finite("beam_width", beam_width, 1)
+    if beam_width < 0:
+        raise ValueError(f"beam_width={beam_width!r}: must be a width >= 0 in radians")
+    if fill_uncovered is not None:
+        given = fill_uncovered
+        try:
+            fill_uncovered = float(fill_uncovered)
+        except (TypeError, ValueError):
+            fill_uncovered = math.nan
+        if not fill_uncovered >= 0:  # NaN too
+            raise ValueError(f"fill_uncovered={given!r}: must be a range >= 0 (or inf)")
     try:
-        ranges = np.asarray(scan.ranges, np.float64).ravel()
+        ranges = np.asarray(scan.ranges, np.float64)
     except (TypeError, ValueError):
         raise ValueError("ranges: must be numbers") from None
+    if ranges.ndim != 1:
+        raise ValueError(f"ranges of shape {ranges.shape}: must be one sweep of readings")
     if ranges.size == 0:
         raise ValueError("ranges: the scan has no readings")
     check_scan_size(scan, ranges.size)
     reading = np.where(np.isneginf(ranges), 0.0, ranges)  # REP 117: -inf is "too close"
-    valid = np.isfinite(reading) & (reading >= scan.range_min) & (reading <= scan.range_max)
+    valid = np.isfinite(reading) & (reading >= range_min) & (reading <= range_max)
     reading = np.where(np.isneginf(ranges) | valid, reading, np.inf)
-    step = abs(scan.angle_increment)
-    angles = scan.angle_min + scan.angle_increment * np.arange(ranges.size) + mount_yaw
+    step = abs(increment)
+    angles = angle_min + increment * np.arange(ranges.size) + mount_yaw
     beams = np.asarray(beam_angles, np.float64).ravel()
     offset = _wrap(angles[None, :] - beams[:, None])  # [beams, readings]
     distance = np.abs(offset)
@@ -316,6 +328,13 @@ class ScanObservation:
             if e["clip"] is not None:
                 value = min(max(value, e["clip"][0]), e["clip"][1])
             values[i] = value
+        too_large = ~(np.abs(values) <= np.finfo(np.float32).max)  # NaN or beyond float32
+        if too_large.any():  # a pose or goal in other units or frame: no action from it
+            e = self.frame_entries[int(np.argmax(too_large))]
+            raise ValueError(
+                f"{e['name']}={raw.get(e['name'], values[too_large][0]):g} in the observation: "
+                "beyond float32 (check the units and frame of the pose, goal and waypoint)"
+            )
         return values.astype(np.float32)
 
     def __call__(

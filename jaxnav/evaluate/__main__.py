@@ -22,6 +22,7 @@ from jaxnav.cli import (
     add_env_args,
     add_policy_source,
     check_policy_source,
+    check_seed,
     env_from_args,
     fail,
     write_failed,
@@ -93,8 +94,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         args = parser().parse_args(argv)
         if not 1 <= args.episodes <= 10**7:
             raise ValueError(f"--episodes {args.episodes}: must be in [1, 10000000]")
-        if args.seed < 0:
-            raise ValueError(f"--seed {args.seed}: must be non-negative")
+        check_seed(args.seed)
         check_policy_source(args)
         env, overrides = env_from_args(args, args.env)
         if args.run is not None:

@@ -14,9 +14,10 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from jaxnav.cli import Parser, UsageError, fail
+from jaxnav.cli import Parser, UsageError, check_seed, fail, write_failed
 from jaxnav.deploy.policy import Policy
 from jaxnav.pretrained import HERE, manifest
+from jaxnav.safe_io import WriteFault
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -36,13 +37,13 @@ def main(argv: list[str] | None = None) -> int:
             if not args.name.replace("-", "").replace("_", "").isalnum():
                 raise UsageError(f"name {args.name!r}: letters, digits, - and _ only")
             if not args.file.is_file():
-                raise ValueError(f"{args.file}: no such file")
+                why = "not a regular file" if args.file.exists() else "no such file"
+                raise ValueError(f"{args.file}: {why}")
             if not args.command:
                 raise UsageError("--command: give the commands that made the policy")
             if not 1 <= args.episodes <= 10**7:
                 raise UsageError(f"--episodes {args.episodes}: must be in [1, 10000000]")
-            if args.seed < 0:
-                raise UsageError(f"--seed {args.seed}: must be non-negative")
+            check_seed(args.seed)
             shipped = args.name in manifest() or (HERE / f"{args.name}.npz").exists()
             if shipped and not args.force:
                 raise UsageError(
@@ -64,6 +65,8 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         entry = add_entry(args.name, args.file, args.command, args.episodes, args.seed, args.note)
+    except WriteFault as e:  # the package directory is full or read-only
+        return write_failed("jaxnav.pretrained", e)
     except ValueError as e:  # the policy's env cannot be built here
         return fail("jaxnav.pretrained", str(e))
     m = entry["measured"]

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import os
 import shutil
 from pathlib import Path
 from typing import Any
@@ -12,6 +11,7 @@ from jaxnav.deploy.policy import Policy
 from jaxnav.evaluate import evaluate_seeds
 from jaxnav.export import to_trainer
 from jaxnav.pretrained import HERE, MANIFEST, sha256
+from jaxnav.safe_io import atomic_output, remove_quietly, write_text
 
 MEASURED = ("success_rate", "collision_rate", "timeout_rate", "mean_steps", "mean_path_ratio")
 
@@ -34,10 +34,10 @@ def add_entry(
     meta = policy.metadata
     measured = measure(policy, episodes, seed)
     target = HERE / f"{name}.npz"
+    new = not target.exists()
     if Path(file).resolve() != target:
-        tmp = target.with_name(f".{target.name}.partial")
-        shutil.copyfile(file, tmp)
-        os.replace(tmp, target)  # whole or not at all
+        with atomic_output(target) as tmp:  # whole or not at all
+            shutil.copyfile(file, tmp)
     entry = {
         "file": target.name,
         "sha256": sha256(target),
@@ -52,7 +52,10 @@ def add_entry(
     }
     doc = json.loads(MANIFEST.read_text()) if MANIFEST.exists() else {"policies": {}}
     doc["policies"][name] = entry
-    tmp = MANIFEST.with_name(MANIFEST.name + ".tmp")
-    tmp.write_text(json.dumps(doc, indent=2) + "\n")
-    os.replace(tmp, MANIFEST)
+    try:
+        write_text(MANIFEST, json.dumps(doc, indent=2) + "\n")
+    except BaseException:
+        if new:  # a policy without its manifest entry is not shipped
+            remove_quietly(target)
+        raise
     return entry

@@ -27,7 +27,7 @@ from typing import Any
 
 import jax
 
-from jaxnav import loggers, run_dir, runner, sharding
+from jaxnav import loggers, raise_stopped, run_dir, runner, sharding
 from jaxnav.cli import (
     Parser,
     UsageError,
@@ -36,11 +36,12 @@ from jaxnav.cli import (
     fail,
     one_line,
     parse_bool,
+    write_failed,
 )
 from jaxnav.config import MAX_STEPS, TrainConfig
 from jaxnav.programs import enable_compilation_cache
 from jaxnav.registration import registered_envs
-from jaxnav.safe_io import WRITE_FAULTS, write_fault_errno
+from jaxnav.safe_io import WRITE_FAULTS, WriteFault, write_fault_errno
 from jaxnav.train import Trainer
 
 EXIT_DIVERGED = 3
@@ -177,7 +178,7 @@ def parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
         "--tensorboard",
         action="store_true",
         help="also write the metrics as TensorBoard event files to OUT/tensorboard "
-        "(tensorboard --logdir OUT; needs pip install -e \".[tensorboard]\")",
+        '(tensorboard --logdir OUT; needs pip install -e ".[tensorboard]")',
     )
     p.add_argument(
         "--wandb",
@@ -302,33 +303,38 @@ def _prepare_training(
     return args, config, out, partial, [n for n in notes if n], Trainer(config)
 
 
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Train as the flags in ``argv`` (default: the command line's) say; the exit code."""
     locks: list[run_dir.RunLock] = []
     run: list[tuple[Path, bool]] = []  # the run's out once known, and whether it is new
     main_thread = threading.current_thread() is threading.main_thread()
     if main_thread:
-        # Ctrl-C before training (the command's start's one-line exit is jaxnav's) is
-        # answered below; training's own handler takes over around the training loop
-        previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+        # SIGINT or SIGTERM before training is answered below; training's own handler takes
+        # over around the training loop
+        previous = {s: signal.signal(s, raise_stopped) for s in STOP_SIGNALS}
     try:
         return _main(argv, locks, run)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as e:
         for lock in locks:
             lock.release()
         out, new = run[0] if run else (None, False)
-        return stopped_early(out, new and bool(locks))
+        return stopped_early(out, new and bool(locks), getattr(e, "signum", signal.SIGINT))
     finally:  # the OS drops it when the process ends; a caller in-process may go on
         for lock in locks:
             lock.release()
-        if main_thread and previous is not None:  # None: a handler not set from Python
-            signal.signal(signal.SIGINT, previous)
+        if main_thread:
+            for s, handler in previous.items():
+                if handler is not None:  # None: a handler not set from Python
+                    signal.signal(s, handler)
 
 
-def stopped_early(out: Path | None, created: bool) -> int:
-    """Report a SIGINT before training began in one line, exit code 130: how to continue a
-    run whose config.json is written; else a run directory this process ``created`` holds
-    nothing and goes."""
+def stopped_early(out: Path | None, created: bool, signum: int = signal.SIGINT) -> int:
+    """Report a SIGINT or SIGTERM before training began in one line, exit code 128 + it: how
+    to continue a run whose config.json is written; else a run directory this process
+    ``created`` holds nothing and goes."""
     partial = None if out is None else run_dir.partial_dir(out)
     if partial is not None and (partial / "config.json").is_file():
         how = f"continue with: python -m jaxnav.train --resume {shlex.quote(str(out))}"
@@ -336,8 +342,9 @@ def stopped_early(out: Path | None, created: bool) -> int:
         if created and partial is not None:
             shutil.rmtree(partial, ignore_errors=True)  # only its lock file: nothing to keep
         how = "nothing was trained or written"
-    print(f"jaxnav.train: stopped by SIGINT before training began; {how}", file=sys.stderr)
-    return 128 + signal.SIGINT
+    name = signal.Signals(signum).name
+    print(f"jaxnav.train: stopped by {name} before training began; {how}", file=sys.stderr)
+    return 128 + signum
 
 
 def _main(
@@ -350,6 +357,8 @@ def _main(
     argv = sys.argv[1:] if argv is None else list(argv)
     try:
         args, config, out, partial, notes, trainer = prepare_training(argv)
+    except WriteFault as e:  # --out on a read-only or full disk
+        return write_failed(prog, e)
     except (UsageError, ValueError) as e:
         return fail(prog, str(e))
     run.append((out, args.resume is None))
@@ -515,8 +524,7 @@ def write_refused(prog: str, error: Exception, resume: str) -> int:
         cause = cause.__cause__ or cause.__context__
     where = getattr(cause, "filename", None) or "the run directory"
     print(
-        f"{prog}: error: cannot write {where}: {WRITE_FAULTS[code]}; then continue with: "
-        f"{resume}",
+        f"{prog}: error: cannot write {where}: {WRITE_FAULTS[code]}; then continue with: {resume}",
         file=sys.stderr,
     )
     return EXIT_DISK_FULL
