@@ -124,6 +124,7 @@ from jaxnav.envs.robot import (
     generators,
     geometry,
     jaxnav_levels,
+    layout,
     mazes,
     occupancy,
     shortest_paths,
@@ -869,6 +870,15 @@ class RobotNav(Environment[RobotState, RobotParams]):
         return frame.at[:n].set(ranges / c.laser_range)
 
     # -- evaluation hooks -----------------------------------------------------------
+    def observation_layout(self, params: RobotParams) -> dict[str, Any]:
+        return layout.observation_layout(self, ACTION_NAMES)
+
+    def action_layout(self) -> list[dict[str, Any]]:
+        return layout.action_layout(self, ACTION_NAMES)
+
+    def sensor_layout(self) -> dict[str, Any]:
+        return layout.sensor_layout(self)
+
     def num_layouts(self, params: RobotParams) -> int:
         return params.bank.num_mazes
 
