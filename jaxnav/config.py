@@ -72,6 +72,12 @@ def widths(v: Any) -> str | None:
     return None if ok else "must be one or more integers in [1, 65536]"
 
 
+def _algo_help() -> str:
+    """``algo``'s help: "dqn (its summary), pqn (...) or ppo (...)", from the registry."""
+    named = [f"{name} ({algorithm.summary})" for name, algorithm in ALGORITHMS.items()]
+    return f"{', '.join(named[:-1])} or {named[-1]}"
+
+
 @dataclasses.dataclass(frozen=True)
 class TrainConfig:
     """Defaults reproduce the paper's grid experiment (Sec. IV-A) on a laptop CPU.
@@ -83,12 +89,7 @@ class TrainConfig:
     env: str = setting("GridMaze-v0", f"environment id ({', '.join(registered_envs())})")
     # the env's own config fields (validated by it), set by the CLI's --env-arg KEY=VALUE
     env_kwargs: dict[str, Any] = dataclasses.field(default_factory=dict)
-    algo: str = setting(
-        "dqn",
-        "dqn (the paper's: replay and a target network), pqn (lambda-returns over rollouts of "
-        "many envs, no replay) or ppo (a sampled policy and a value network over rollouts)",
-        one_of(*ALGOS),
-    )
+    algo: str = setting("dqn", _algo_help(), one_of(*ALGOS))
     seed: int = setting(0, "first seed; seeds are seed .. seed+num_seeds-1", integer(0, 2**31 - 1))
     num_seeds: int = setting(1, "seeds trained at once (vmapped in one program)", integer(1, 4096))
     total_timesteps: int = setting(240_000, "env steps per seed", integer(1, MAX_STEPS))
@@ -315,7 +316,8 @@ class TrainConfig:
         return max(self.n_step, self.buffer_size // self.num_envs)
 
     def validate(self) -> None:
-        """Raise ``ValueError`` naming the first bad value or combination."""
+        """Raise ``ValueError`` naming the first bad setting (in declaration order, by its
+        ``check``), else the first bad combination."""
         env_config(self.env, **self.env_kwargs)
         for f in dataclasses.fields(self):
             check, value = f.metadata.get("check"), getattr(self, f.name)

@@ -9,6 +9,7 @@ import dataclasses
 import jax
 import pytest
 
+from jaxnav.algos import ALGOS
 from jaxnav.config import HPARAMS, TrainConfig, integer, number, setting
 from jaxnav.presets import PRESETS
 from jaxnav.train import HParams
@@ -54,6 +55,9 @@ def test_every_setting_has_help_a_check_and_a_flag_and_every_flag_a_setting():
         shown = actions[flag(f.name)].help
         assert shown.startswith(f"{f.metadata['help']} (default: "), (f.name, shown)
     assert set(actions) - RUN_FLAGS == {flag(f.name) for f in SETTINGS}
+    # --algo's help is the registry's: each algorithm says what it is
+    for name, algorithm in ALGOS.items():
+        assert algorithm.summary and f"{name} ({algorithm.summary})" in actions["--algo"].help
 
 
 @pytest.mark.parametrize("f", SETTINGS, ids=lambda f: f.name)
