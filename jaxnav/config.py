@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 from typing import Any
 
 import jax
@@ -12,7 +13,7 @@ from jaxnav.agents.dqn import COMPUTE_DTYPES
 from jaxnav.algos import ALGOS as ALGORITHMS
 from jaxnav.algos.base import MAX_UPDATES, Algorithm
 from jaxnav.presets import default_algo, train_defaults
-from jaxnav.registration import env_config
+from jaxnav.registration import env_config, registered_envs
 from jaxnav.sharding import mesh_shape
 
 # step counters are int32 inside the compiled loop; keep a margin below 2^31
@@ -20,78 +21,183 @@ MAX_STEPS = 2_000_000_000
 ALGOS = tuple(ALGORITHMS)  # the names ``algo`` takes
 
 
+# A setting's check: what is wrong with a value, as the end of a one-line error; None if fine
+Check = Callable[[Any], str | None]
+
+
+def setting(default: Any, help: str, check: Check | None = None, hparam: bool = False) -> Any:
+    """A ``TrainConfig`` field, declared once: its default, its ``--help`` text, the ``check``
+    ``validate`` runs on its value alone and whether it is a vmappable leaf of
+    ``jaxnav.train.HParams`` (``hparam``); the training CLI's flag is its name."""
+    return dataclasses.field(
+        default=default, metadata={"help": help, "check": check, "hparam": hparam}
+    )
+
+
+def integer(lo: int, hi: int) -> Check:
+    """An integer (not a bool) in [lo, hi]."""
+
+    def check(v: Any) -> str | None:
+        ok = isinstance(v, int) and not isinstance(v, bool) and lo <= v <= hi
+        return None if ok else f"must be an integer in [{lo}, {hi}]"
+
+    return check
+
+
+def number(lo: float, hi: float, positive: bool = False) -> Check:
+    """A finite number (not a bool) in [lo, hi], and above 0 where ``positive``."""
+
+    def check(v: Any) -> str | None:
+        ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+        if not ok or not lo <= v <= hi:
+            return f"must be a number in [{lo}, {hi}]"
+        return "must be positive" if positive and v <= 0 else None
+
+    return check
+
+
+def one_of(*choices: str) -> Check:
+    """One of ``choices``."""
+    return lambda v: None if v in choices else f"must be one of {', '.join(choices)}"
+
+
+def boolean(v: Any) -> str | None:
+    """True or False, not a number or a string."""
+    return None if isinstance(v, bool) else "must be true or false"
+
+
+def widths(v: Any) -> str | None:
+    """One or more layer widths, integers in [1, 65536]."""
+    ok = bool(v) and all(integer(1, 65536)(h) is None for h in v)
+    return None if ok else "must be one or more integers in [1, 65536]"
+
+
+def _algo_help() -> str:
+    """``algo``'s help: "dqn (its summary), pqn (...) or ppo (...)", from the registry."""
+    named = [f"{name} ({algorithm.summary})" for name, algorithm in ALGORITHMS.items()]
+    return f"{', '.join(named[:-1])} or {named[-1]}"
+
+
 @dataclasses.dataclass(frozen=True)
 class TrainConfig:
     """Defaults reproduce the paper's grid experiment (Sec. IV-A) on a laptop CPU.
 
-    Sizes count env steps (transitions of one env) unless named otherwise.
+    Sizes count env steps (transitions of one env) unless named otherwise. Each field is a
+    ``setting``: validation, ``HParams`` and the training CLI's flags are read off it.
     """
 
-    env: str = "GridMaze-v0"
+    env: str = setting("GridMaze-v0", f"environment id ({', '.join(registered_envs())})")
+    # the env's own config fields (validated by it), set by the CLI's --env-arg KEY=VALUE
     env_kwargs: dict[str, Any] = dataclasses.field(default_factory=dict)
-    # "dqn": the paper's (dueling, double) DQN with replay and a target network; "pqn":
-    # lambda-returns over rollouts of many envs, no replay, no target network; "ppo": a
-    # policy (the network's outputs are its logits) and a value network over rollouts
-    algo: str = "dqn"
-    seed: int = 0
-    num_seeds: int = 1
-    total_timesteps: int = 240_000
-    num_envs: int = 16
-    # devices to shard over (``jaxnav.sharding``): seeds first, then each seed's envs
-    devices: int = 1
+    algo: str = setting("dqn", _algo_help(), one_of(*ALGOS))
+    seed: int = setting(0, "first seed; seeds are seed .. seed+num_seeds-1", integer(0, 2**31 - 1))
+    num_seeds: int = setting(1, "seeds trained at once (vmapped in one program)", integer(1, 4096))
+    total_timesteps: int = setting(240_000, "env steps per seed", integer(1, MAX_STEPS))
+    num_envs: int = setting(16, "parallel environments per seed", integer(1, 2**24))
+    devices: int = setting(
+        1,
+        "devices to shard over, a count or 'all' (of every host): seeds are split first, then "
+        "each seed's envs, with gradients averaged across its devices",
+        integer(1, 65536),
+    )
     # network and loss
-    hidden_sizes: tuple[int, ...] = (512, 256, 128, 64)
-    dueling: bool = True
-    double: bool = True
-    layer_norm: bool = False
-    # with layer_norm: LayerNorm and ReLU as one op with a float32 gradient
-    # (``agents.layer_norm``), Pallas kernels on GPUs, the same math in jnp on a CPU
-    # (``Trainer.norm_impl``)
-    fused_layer_norm: bool = False
-    compute_dtype: str = "float32"  # of the hidden layers' matrix products
-    # units of a GRU cell between the MLP and the heads (a recurrent network whose hidden
-    # state is carried along each env's episode, zeros at its start); 0: none
-    memory: int = 0
-    loss: str = "huber"
+    hidden_sizes: tuple[int, ...] = setting(
+        (512, 256, 128, 64), "MLP widths, comma separated (the paper's: 512,256,128,64)", widths
+    )
+    dueling: bool = setting(True, "dueling heads V + A - mean(A) (paper eq. 7)", boolean)
+    double: bool = setting(True, "double-DQN targets (paper eq. 6)", boolean)
+    layer_norm: bool = setting(False, "LayerNorm before each hidden ReLU (PQN's network)", boolean)
+    # Trainer.norm_impl picks the kernels (agents.layer_norm)
+    fused_layer_norm: bool = setting(
+        False,
+        "LayerNorm and ReLU as one op with a float32 gradient: Pallas kernels on a GPU (on each "
+        "device's rows over several), jnp on a CPU",
+        boolean,
+    )
+    compute_dtype: str = setting(
+        "float32",
+        "float32 or bfloat16 matrix products in the hidden layers",
+        one_of(*COMPUTE_DTYPES),
+    )
+    memory: int = setting(
+        0,
+        "units of a GRU cell between the MLP and the heads, its hidden state carried through "
+        "each episode and reset at its start (0: no memory); pqn and ppo",
+        integer(0, 65536),
+    )
+    loss: str = setting("huber", "huber or mse", one_of("huber", "mse"))
     # replay
-    buffer_size: int = 100_000
-    batch_size: int = 128
-    # env steps of random actions before the first update, rounded up to whole iterations and
-    # to at least n_step of them (the buffer must hold an n-step transition): at 16,384 envs
+    buffer_size: int = setting(100_000, "replay capacity in transitions", integer(1, 10**9))
+    batch_size: int = setting(128, "transitions per gradient step", integer(1, 2**20))
+    # at least n_step iterations: the buffer must hold an n-step transition; at 16,384 envs
     # the default waits one iteration
-    learning_starts: int = 10_000
-    # sampled transitions per env step (the replay ratio): updates_per_iteration = replay_ratio *
-    # num_envs / batch_size gradient steps per vectorized env step, which must be whole; held
-    # fixed, the learning per env step (and target_update_period, in env steps) mean the same
-    # at any num_envs. 8 = the paper's grid setting, 16 envs x 1 update of batch 128.
-    replay_ratio: float = 8.0
-    n_step: int = 1
-    target_update_period: int = 2_000  # static, so skipped iterations cost nothing
-    # PQN and PPO: each iteration steps every env rollout_length times, then num_epochs passes of
-    # num_minibatches gradient steps over those num_envs * rollout_length transitions
-    rollout_length: int = 1
-    num_epochs: int = 1
-    num_minibatches: int = 1
-    optimizer: str = "adam"
-    # per-run hyperparameters (vmappable leaves of HParams)
-    gamma: float = 0.9
-    lr: float = 1e-3
-    lr_end: float = 1e-4
-    max_grad_norm: float = 10.0
-    tau: float = 1.0
-    eps_start: float = 1.0
-    eps_end: float = 0.05
-    eps_decay_steps: int = 100_000
-    td_lambda: float = 0.65  # PQN's lambda-returns, PPO's GAE (the same lambda)
-    # PPO: the ratio's clip range (and the value's, with clip_value), the value loss's and
-    # the policy entropy bonus's weights
-    clip_eps: float = 0.2
-    vf_coef: float = 0.5
-    ent_coef: float = 0.01
-    clip_value: bool = True
+    learning_starts: int = setting(
+        10_000,
+        "env steps of random actions before the first update (whole iterations, at least "
+        "n_step of them)",
+        integer(0, MAX_STEPS),
+    )
+    # held fixed, the learning per env step (and target_update_period, in env steps) mean the
+    # same at any num_envs; 8 = the paper's grid setting, 16 envs x 1 update of batch 128
+    replay_ratio: float = setting(
+        8.0,
+        "dqn: sampled transitions per env step; an iteration (one step of every env) takes "
+        "replay_ratio * num_envs / batch_size gradient steps, a whole number",
+        number(0.0, float(MAX_UPDATES * 2**20), positive=True),
+    )
+    n_step: int = setting(1, "n-step returns", integer(1, 64))
+    # static, so skipped iterations cost nothing
+    target_update_period: int = setting(
+        2_000, "env steps between target-network updates", integer(1, MAX_STEPS)
+    )
+    rollout_length: int = setting(
+        1, "pqn, ppo: env steps of every env per iteration", integer(1, 4096)
+    )
+    num_epochs: int = setting(1, "pqn, ppo: passes over each rollout", integer(1, 1024))
+    num_minibatches: int = setting(
+        1, "pqn, ppo: gradient steps per pass over a rollout", integer(1, 2**20)
+    )
+    optimizer: str = setting("adam", "adam or sgd", one_of("adam", "sgd"))
+    gamma: float = setting(0.9, "discount", number(0.0, 1.0), hparam=True)
+    lr: float = setting(
+        1e-3, "learning rate at the start", number(0.0, 10.0, positive=True), hparam=True
+    )
+    lr_end: float = setting(
+        1e-4, "learning rate at the end (linear decay)", number(0.0, 10.0), hparam=True
+    )
+    max_grad_norm: float = setting(
+        10.0, "global-norm gradient clipping", number(0.0, 1e9, positive=True), hparam=True
+    )
+    tau: float = setting(
+        1.0, "target update weight (1 = hard copy)", number(0.0, 1.0, positive=True), hparam=True
+    )
+    eps_start: float = setting(
+        1.0, "exploration epsilon at the start", number(0.0, 1.0), hparam=True
+    )
+    eps_end: float = setting(
+        0.05, "exploration epsilon after eps_decay_steps", number(0.0, 1.0), hparam=True
+    )
+    eps_decay_steps: int = setting(
+        100_000, "env steps of linear epsilon decay", integer(1, MAX_STEPS), hparam=True
+    )
+    td_lambda: float = setting(
+        0.65, "pqn: lambda of the lambda-returns; ppo: of GAE", number(0.0, 1.0), hparam=True
+    )
+    clip_eps: float = setting(
+        0.2,
+        "ppo: clip range of the probability ratio (and of the value, with clip_value)",
+        number(0.0, 1.0, positive=True),
+    )
+    vf_coef: float = setting(0.5, "ppo: weight of the value loss", number(0.0, 1e3))
+    ent_coef: float = setting(0.01, "ppo: weight of the policy's entropy bonus", number(0.0, 1e3))
+    clip_value: bool = setting(
+        True, "ppo: clip the value's change from the rollout's as the ratio is clipped", boolean
+    )
     # bookkeeping
-    log_interval: int = 16_000
-    eval_episodes: int = 1000
+    log_interval: int = setting(
+        16_000, "env steps per metrics row and progress line", integer(1, MAX_STEPS)
+    )
+    eval_episodes: int = setting(1000, "greedy evaluation episodes at the end", integer(0, 10**7))
 
     @classmethod
     def for_env(cls, env: str = "GridMaze-v0", **overrides: Any) -> TrainConfig:
@@ -210,73 +316,14 @@ class TrainConfig:
         return max(self.n_step, self.buffer_size // self.num_envs)
 
     def validate(self) -> None:
-        """Raise ``ValueError`` naming the first bad value or combination."""
+        """Raise ``ValueError`` naming the first bad setting (in declaration order, by its
+        ``check``), else the first bad combination."""
         env_config(self.env, **self.env_kwargs)
-        ints = {
-            "seed": (0, 2**31 - 1),
-            "num_seeds": (1, 4096),
-            "total_timesteps": (1, MAX_STEPS),
-            "num_envs": (1, 2**24),
-            "devices": (1, 65536),
-            "buffer_size": (1, 10**9),
-            "batch_size": (1, 2**20),
-            "learning_starts": (0, MAX_STEPS),
-            "n_step": (1, 64),
-            "rollout_length": (1, 4096),
-            "num_epochs": (1, 1024),
-            "num_minibatches": (1, 2**20),
-            "target_update_period": (1, MAX_STEPS),
-            "eps_decay_steps": (1, MAX_STEPS),
-            "log_interval": (1, MAX_STEPS),
-            "eval_episodes": (0, 10**7),
-            "memory": (0, 65536),
-        }
-        for name, (lo, hi) in ints.items():
-            v = getattr(self, name)
-            if not isinstance(v, int) or isinstance(v, bool) or not lo <= v <= hi:
-                raise ValueError(f"{name}={v!r}: must be an integer in [{lo}, {hi}]")
-        floats = {
-            "gamma": (0.0, 1.0),
-            "lr": (0.0, 10.0),
-            "lr_end": (0.0, 10.0),
-            "max_grad_norm": (0.0, 1e9),
-            "tau": (0.0, 1.0),
-            "eps_start": (0.0, 1.0),
-            "eps_end": (0.0, 1.0),
-            "td_lambda": (0.0, 1.0),
-            "clip_eps": (0.0, 1.0),
-            "vf_coef": (0.0, 1e3),
-            "ent_coef": (0.0, 1e3),
-            "replay_ratio": (0.0, float(MAX_UPDATES * 2**20)),
-        }
-        for name, (lo, hi) in floats.items():
-            v = getattr(self, name)
-            ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-            if not ok or not lo <= v <= hi:
-                raise ValueError(f"{name}={v!r}: must be a number in [{lo}, {hi}]")
-        positive = ("lr", "max_grad_norm", "tau", "replay_ratio", "clip_eps")
-        bad = next((n for n in positive if getattr(self, n) <= 0), None)
-        if bad is not None:
-            raise ValueError(f"{bad}={getattr(self, bad)!r}: must be positive")
-        if not self.hidden_sizes or any(
-            not isinstance(h, int) or isinstance(h, bool) or not 1 <= h <= 65536
-            for h in self.hidden_sizes
-        ):
-            raise ValueError(
-                f"hidden_sizes={self.hidden_sizes!r}: must be one or more integers in [1, 65536]"
-            )
-        for name in ("dueling", "double", "layer_norm", "fused_layer_norm", "clip_value"):
-            if not isinstance(getattr(self, name), bool):
-                raise ValueError(f"{name}={getattr(self, name)!r}: must be true or false")
-        for name, choices in (("algo", ALGOS), ("compute_dtype", COMPUTE_DTYPES)):
-            if getattr(self, name) not in choices:
-                raise ValueError(
-                    f"{name}={getattr(self, name)!r}: must be one of {', '.join(choices)}"
-                )
-        if self.loss not in ("huber", "mse"):
-            raise ValueError(f"loss={self.loss!r}: must be one of huber, mse")
-        if self.optimizer not in ("adam", "sgd"):
-            raise ValueError(f"optimizer={self.optimizer!r}: must be one of adam, sgd")
+        for f in dataclasses.fields(self):
+            check, value = f.metadata.get("check"), getattr(self, f.name)
+            fault = check(value) if check else None
+            if fault:
+                raise ValueError(f"{f.name}={value!r}: {fault}")
         if self.devices > jax.device_count():
             raise ValueError(
                 f"devices={self.devices}: only {jax.device_count()} device(s) are available"
@@ -302,6 +349,10 @@ class TrainConfig:
                 f"memory is for algo {recurrent}"
             )
         self.algorithm.validate(self)
+
+
+# the settings marked hparam, in declaration order: the fields of jaxnav.train.HParams
+HPARAMS = tuple(f.name for f in dataclasses.fields(TrainConfig) if f.metadata.get("hparam"))
 
 
 def _divisors(n: int) -> list[int]:

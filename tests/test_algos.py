@@ -31,8 +31,8 @@ def algorithm_branches(path: Path) -> list[str]:
     registered name (the ``algo`` field's default aside) or a comparison of an ``algo`` with
     string constants (``algo == "x"``, ``algo in ("x", "y")``)."""
     tree = ast.parse(path.read_text())
-    default = {
-        id(node.value)
+    default = {  # the field's value, or the default its setting(...) gives first
+        id(node.value.args[0] if isinstance(node.value, ast.Call) else node.value)
         for node in ast.walk(tree)
         if isinstance(node, ast.AnnAssign) and getattr(node.target, "id", None) == "algo"
     }

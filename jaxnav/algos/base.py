@@ -100,6 +100,8 @@ class Algorithm:
     acting = "eps-greedy"
     # whether it trains a recurrent network (``TrainConfig.memory``)
     recurrent = False
+    # what it is, as the help of ``--algo`` says
+    summary = ""
 
     def __init__(self, loop: Loop):
         self.loop = loop

@@ -35,6 +35,7 @@ class DQN(Algorithm):
     """Replay and a target network (``dueling`` and ``double`` flags: the paper's agents)."""
 
     minibatch_field = "batch_size"
+    summary = "the paper's: replay and a target network"
     gpu_updates_unroll = 2
 
     @classmethod

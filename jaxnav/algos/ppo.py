@@ -131,6 +131,7 @@ class PPO(RolloutAlgorithm):
     gpu_updates_unroll = 16
     outputs = "the policy's logits"
     acting = "sampled"
+    summary = "a sampled policy and a value network over rollouts"
 
     def __init__(self, loop: Any):
         super().__init__(loop)

@@ -23,6 +23,7 @@ from jaxnav.algos.base import LossFn, RolloutAlgorithm, TrainState, Transitions
 class PQN(RolloutAlgorithm):
     """Lambda-returns over rollouts of many envs; keeps nothing beyond the shared state."""
 
+    summary = "lambda-returns over rollouts of many envs, no replay"
     gpu_updates_unroll = 16
 
     def minibatch_loss(self, ts: TrainState) -> LossFn:

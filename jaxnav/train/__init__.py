@@ -30,7 +30,7 @@ from jaxnav import sharding
 from jaxnav.agents import dqn
 from jaxnav.algos import backend
 from jaxnav.algos.base import LossFn, TrainState, Transitions
-from jaxnav.config import TrainConfig
+from jaxnav.config import HPARAMS, TrainConfig
 from jaxnav.registration import make
 from jaxnav.sharding import ENVS, SEEDS
 
@@ -90,17 +90,11 @@ def jit_training(fun: Callable, **kwargs: Any) -> Any:
 
 @struct.dataclass
 class HParams:
-    """Hyperparameters that may differ between runs of one compiled program (vmappable)."""
+    """Hyperparameters that may differ between runs of one compiled program (vmappable): a
+    float32 array for each ``TrainConfig`` setting marked ``hparam``, in its order."""
 
-    gamma: jax.Array
-    lr: jax.Array
-    lr_end: jax.Array
-    max_grad_norm: jax.Array
-    tau: jax.Array
-    eps_start: jax.Array
-    eps_end: jax.Array
-    eps_decay_steps: jax.Array
-    td_lambda: jax.Array
+    # checkpoints store these leaves by name: a setting marked hparam is one more of them
+    __annotations__ = dict.fromkeys(HPARAMS, jax.Array)
 
     @classmethod
     def from_config(cls, config: TrainConfig) -> HParams:

@@ -40,7 +40,6 @@ from jaxnav.cli import (
 )
 from jaxnav.config import MAX_STEPS, TrainConfig
 from jaxnav.programs import enable_compilation_cache
-from jaxnav.registration import registered_envs
 from jaxnav.safe_io import WRITE_FAULTS, WriteFault, write_fault_errno
 from jaxnav.train import Trainer
 
@@ -48,56 +47,6 @@ EXIT_DIVERGED = 3
 EXIT_DISK_FULL = runner.EXIT_DISK_FULL
 CHECKPOINT_FLAGS = ("checkpoint_every", "keep_checkpoints")  # kept by --resume unless given
 CHECKPOINT_EVERY = 80_000  # env steps, rounded to the run's logging intervals
-
-HELP = {
-    "env": f"environment id ({', '.join(registered_envs())})",
-    "seed": "first seed; seeds are seed .. seed+num_seeds-1",
-    "num_seeds": "seeds trained at once (vmapped in one program)",
-    "total_timesteps": "env steps per seed",
-    "num_envs": "parallel environments per seed",
-    "devices": "devices to shard over, a count or 'all' (of every host): seeds are split "
-    "first, then each seed's envs, with gradients averaged across its devices",
-    "hidden_sizes": "MLP widths, comma separated (the paper's: 512,256,128,64)",
-    "dueling": "dueling heads V + A - mean(A) (paper eq. 7)",
-    "double": "double-DQN targets (paper eq. 6)",
-    "algo": "dqn (the paper's: replay and a target network), pqn (lambda-returns over "
-    "rollouts of many envs, no replay) or ppo (a sampled policy and a value network over "
-    "rollouts)",
-    "layer_norm": "LayerNorm before each hidden ReLU (PQN's network)",
-    "fused_layer_norm": "LayerNorm and ReLU as one op with a float32 gradient: Pallas kernels "
-    "on a GPU (on each device's rows over several), jnp on a CPU",
-    "compute_dtype": "float32 or bfloat16 matrix products in the hidden layers",
-    "memory": "units of a GRU cell between the MLP and the heads, its hidden state carried "
-    "through each episode and reset at its start (0: no memory); pqn and ppo",
-    "rollout_length": "pqn, ppo: env steps of every env per iteration",
-    "num_epochs": "pqn, ppo: passes over each rollout",
-    "num_minibatches": "pqn, ppo: gradient steps per pass over a rollout",
-    "td_lambda": "pqn: lambda of the lambda-returns; ppo: of GAE",
-    "clip_eps": "ppo: clip range of the probability ratio (and of the value, with clip_value)",
-    "vf_coef": "ppo: weight of the value loss",
-    "ent_coef": "ppo: weight of the policy's entropy bonus",
-    "clip_value": "ppo: clip the value's change from the rollout's as the ratio is clipped",
-    "loss": "huber or mse",
-    "buffer_size": "replay capacity in transitions",
-    "batch_size": "transitions per gradient step",
-    "learning_starts": "env steps of random actions before the first update (whole "
-    "iterations, at least n_step of them)",
-    "replay_ratio": "dqn: sampled transitions per env step; an iteration (one step of every env) "
-    "takes replay_ratio * num_envs / batch_size gradient steps, a whole number",
-    "n_step": "n-step returns",
-    "gamma": "discount",
-    "lr": "learning rate at the start",
-    "lr_end": "learning rate at the end (linear decay)",
-    "optimizer": "adam or sgd",
-    "max_grad_norm": "global-norm gradient clipping",
-    "target_update_period": "env steps between target-network updates",
-    "tau": "target update weight (1 = hard copy)",
-    "eps_start": "exploration epsilon at the start",
-    "eps_end": "exploration epsilon after eps_decay_steps",
-    "eps_decay_steps": "env steps of linear epsilon decay",
-    "log_interval": "env steps per metrics row and progress line",
-    "eval_episodes": "greedy evaluation episodes at the end",
-}
 
 
 def _int_list(text: str) -> tuple[int, ...]:
@@ -116,15 +65,6 @@ def _devices(text: str) -> int | str:
         raise argparse.ArgumentTypeError(
             f"invalid device count {text!r} (a number or all)"
         ) from None
-
-
-class _DefaultsShown(argparse.ArgumentDefaultsHelpFormatter):
-    """Shows defaults, except None ones (training flags spell out their env-dependent default)."""
-
-    def _get_help_string(self, action: argparse.Action) -> str | None:
-        if action.default is None:
-            return action.help
-        return super()._get_help_string(action)
 
 
 def preset_defaults(argv: Sequence[str] | None) -> TrainConfig:
@@ -152,24 +92,23 @@ def parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
         f"whole run are one program. Defaults shown: {defaults.env} with --algo "
         f"{defaults.algo} (its preset, jaxnav.presets); add --env and --algo to --help for "
         "another's.",
-        formatter_class=_DefaultsShown,
     )
     for f in dataclasses.fields(TrainConfig):
         if f.name == "env_kwargs":
             continue
         default = getattr(defaults, f.name)
         flag = "--" + f.name.replace("_", "-")
-        if isinstance(default, bool):
+        # the flag's type is the declared default's (a preset's 1 would make --lr 0.5 refused)
+        if isinstance(f.default, bool):
             kind, meta = parse_bool, "{true,false}"
-        elif isinstance(default, tuple):
+        elif isinstance(f.default, tuple):
             kind, meta, default = _int_list, "W,W,...", ",".join(map(str, default))
         elif f.name == "devices":
             kind, meta = _devices, "{N,all}"
         else:
-            kind, meta = type(default), None
-        shown = f"default: {default}"
+            kind, meta = type(f.default), None
         # None = not given: the env's tuned default (TrainConfig.for_env) fills it in
-        help_text = f"{HELP[f.name]} ({shown})" if f.name in HELP else f"({shown})"
+        help_text = f"{f.metadata['help']} (default: {default})"
         p.add_argument(flag, type=kind, default=None, metavar=meta, help=help_text)
     add_env_args(p)
     p.add_argument("--out", type=Path, help="run directory (default: runs/<env>-<time>)")
