@@ -52,6 +52,9 @@ class TrainConfig:
     # units of a GRU cell between the MLP and the heads (a recurrent network whose hidden
     # state is carried along each env's episode, zeros at its start); 0: none
     memory: int = 0
+    # a shipped policy's name (``jaxnav.pretrained``) or an exported npz whose weights start
+    # the run (fine-tuning; optimizer, exploration and replay start afresh); "": random ones
+    init_from: str = ""
     loss: str = "huber"
     # replay
     buffer_size: int = 100_000
@@ -277,6 +280,10 @@ class TrainConfig:
             raise ValueError(f"loss={self.loss!r}: must be one of huber, mse")
         if self.optimizer not in ("adam", "sgd"):
             raise ValueError(f"optimizer={self.optimizer!r}: must be one of adam, sgd")
+        if not isinstance(self.init_from, str):
+            raise ValueError(
+                f"init_from={self.init_from!r}: must be a shipped policy's name or an npz file"
+            )
         if self.devices > jax.device_count():
             raise ValueError(
                 f"devices={self.devices}: only {jax.device_count()} device(s) are available"

@@ -77,6 +77,9 @@ HELP = {
     "vf_coef": "ppo: weight of the value loss",
     "ent_coef": "ppo: weight of the policy's entropy bonus",
     "clip_value": "ppo: clip the value's change from the rollout's as the ratio is clipped",
+    "init_from": "start from the weights of a shipped policy (python -m jaxnav.pretrained "
+    "lists them) or an exported npz, to fine-tune it: its network and observation must be "
+    "the run's; optimizer, exploration and replay start afresh",
     "loss": "huber or mse",
     "buffer_size": "replay capacity in transitions",
     "batch_size": "transitions per gradient step",
