@@ -4,6 +4,8 @@ actions are not the run's is refused in one line naming it."""
 
 from __future__ import annotations
 
+import json
+
 import jax
 import numpy as np
 import pytest
@@ -69,8 +71,9 @@ def test_a_run_from_a_shipped_policy_starts_with_its_weights(source):
     ],
 )
 def test_a_policy_that_does_not_fit_the_run_is_refused(overrides, message):
+    trainer = Trainer(generalist_config(**overrides))  # a trained run's evaluation reads none
     with pytest.raises(ValueError) as e:
-        Trainer(generalist_config(**overrides))
+        trainer.init(jax.random.key(0))
     assert str(e.value).startswith(message) and "\n" not in str(e.value)
 
 
@@ -82,3 +85,17 @@ def test_the_command_line_refuses_it_in_one_line(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "init_from='robotnav-pqn'" in err and "Traceback" not in err
     assert not out.exists()
+
+
+@pytest.mark.slow  # compiles and runs a training program
+def test_the_command_line_fine_tunes_a_shipped_policy(tmp_path, capsys):
+    """320 env steps at a negligible learning rate from the shipped grid agent: the run's own
+    evaluation is the agent's (from random weights it would be the random agent's); the run's
+    config records where it started."""
+    out = tmp_path / "run"
+    flags = ["--total-timesteps", "320", "--learning-starts", "64", "--buffer-size", "256"]
+    flags += ["--log-interval", "160", "--eval-episodes", "200", "--lr", "1e-7", "--lr-end", "1e-7"]
+    assert train_main(["--init-from", "gridmaze-dqn", *flags, "--quiet", "--out", str(out)]) == 0
+    trained = json.loads((out / "summary.json").read_text())["trained"]
+    assert trained["success_rate"] >= 0.95, trained
+    assert json.loads((out / "config.json").read_text())["config"]["init_from"] == "gridmaze-dqn"

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable
-from functools import partial
+from functools import cached_property, partial
 from typing import Any
 
 import jax
@@ -138,7 +138,6 @@ class Trainer:
         self.obs_size = self.env.observation_space(self.env_params).shape[0]
         self.algorithm = config.algorithm(self)
         self._check_memory()
-        self.init_params = self._initial_params()
 
     @staticmethod
     def norm_impl(config: TrainConfig) -> str:
@@ -197,10 +196,12 @@ class Trainer:
                 f"{have / 2**30:.1f} GiB"
             )
 
-    def _initial_params(self) -> Any:
+    @cached_property
+    def init_params(self) -> Any:
         """The weights of ``config.init_from`` (flax's tree), None without one; ``ValueError``
         (one line naming it) for a policy that is not found or whose network, observation or
-        actions are not this run's."""
+        actions are not this run's. Read when a run starts (``init``), not to evaluate or export
+        a trained one."""
         name = self.config.init_from
         if not name:
             return None
