@@ -113,6 +113,21 @@ class Environment(Generic[StateT, ParamsT]):
     # -- evaluation hooks -------------------------------------------------------------
     # Defaults for an env with one layout and no known shortest paths; envs with a bank of
     # layouts (mazes) or with shortest paths override them.
+    # -- what an exported policy says of the env (``jaxnav.export``) ----------------------
+    def observation_layout(self, params: ParamsT) -> dict[str, Any]:
+        """The observation value by value (``size``, ``entries`` with ``index``, ``name``,
+        ``scale``, ``clip``, the frame stacking, what each name means), for a robot to build
+        the same input; ``ValueError`` where the env does not describe it."""
+        raise ValueError(f"{type(self).__name__}: no observation layout known for this env")
+
+    def action_layout(self) -> list[dict[str, Any]]:
+        """What each action index does, in the env's units."""
+        raise ValueError(f"{type(self).__name__}: no action layout known for this env")
+
+    def sensor_layout(self) -> dict[str, Any] | None:
+        """The sensors and control period a policy was trained with; None without sensors."""
+        return None
+
     def num_layouts(self, params: ParamsT) -> int:
         """Layouts (mazes) in the env's bank, a Python int; fresh episodes draw one of them."""
         return 1

@@ -74,7 +74,8 @@ LABELS = AGENT_LABELS
 SIZES = ("paper", "quick", "smoke")
 SUITE_SEED = 20_240  # test episodes; independent of the training seeds
 TRAJECTORY_EPISODES = 4  # recorded test episodes per suite (dueling-double, first seed)
-EXAMPLE_MAZE = Path(__file__).resolve().parent.parent / "examples" / "mazes" / "rooms.txt"
+# shipped with the package (examples/mazes links here), so an installed wheel has them
+EXAMPLE_MAZE = Path(__file__).resolve().parent / "envs" / "robot" / "maze_files" / "rooms.txt"
 METRICS = (
     "success_rate",
     "collision_rate",

@@ -47,8 +47,6 @@ from jaxnav.deploy.policy import (
     array_checksums,
     verify_checksums,
 )
-from jaxnav.envs import grid_maze
-from jaxnav.envs.robot import env as robot_env
 from jaxnav.safe_io import WriteFault, atomic_output, check_output_file
 from jaxnav.version import __version__
 
@@ -57,209 +55,6 @@ ONNX_OPSET = 17  # LayerNormalization's first opset
 ONNX_IR_VERSION = 8  # the oldest IR of opset 17: runtimes back to onnxruntime 1.14 read it
 LAYER_NORM_EPSILON = 1e-6  # flax.linen.LayerNorm's default, which QNetwork uses
 METADATA_KEY = "jaxnav"
-
-
-# ------------------------------------------------------------------ observation layout
-MOVES = ("up", "down", "left", "right")  # GridMaze's actions, in order
-def _entry(name: str, scale: float = 1.0, clip: Sequence[float] | None = None, **more: Any):
-    return {"name": name, "scale": scale, "clip": None if clip is None else list(clip), **more}
-
-
-def robot_frame_layout(env: robot_env.RobotNav) -> list[dict[str, Any]]:
-    """One frame of a robot env's observation, value by value in the env's order (its
-    ``_frame``): ``name``, ``scale`` (value = raw quantity x scale), ``clip`` (of the value,
-    or None) and, for lasers, the beam's ``angle_rad`` from the heading (counter-clockwise)."""
-    c = env.config
-    inv_range = 1.0 / c.laser_range
-    entries = [
-        _entry("laser", inv_range, (0.0, 1.0), beam=i, angle_rad=float(a))
-        for i, a in enumerate(np.asarray(env.angles, np.float64))
-    ]
-    if c.obs_absolute:
-        width, height = (float(v) for v in env.arena)
-        entries += [
-            _entry("goal_x", 1.0 / width),
-            _entry("goal_y", 1.0 / height),
-            _entry("robot_x", 1.0 / width),
-            _entry("robot_y", 1.0 / height),
-        ]
-    if c.obs_proximity:
-        entries.append(_entry("goal_distance", 1.0 / (c.goal_range or c.laser_range), (0.0, 1.0)))
-    if c.obs_heading:
-        entries += [_entry("heading_sin"), _entry("heading_cos")]
-    if c.obs_goal_bearing:
-        entries += [_entry("goal_bearing_sin"), _entry("goal_bearing_cos")]
-    if c.waypoint_distance:
-        entries += [
-            _entry("waypoint_bearing_sin"),
-            _entry("waypoint_bearing_cos"),
-            _entry("waypoint_distance", inv_range, (0.0, 1.0)),
-        ]
-    if c.obs_last_action:
-        entries += [_entry(f"last_action_{name}") for name in robot_env.ACTION_NAMES]
-    if c.obs_radius:
-        entries.append(_entry("robot_radius", 1.0, (0.0, 1.0)))
-    return entries
-
-
-ROBOT_QUANTITIES = {
-    "laser": "range in metres from the robot's centre along the beam, clipped to the laser "
-    "range (no hit reads the range)",
-    "goal_x": "goal x in metres, in the maze's frame (origin at its lower-left corner)",
-    "goal_y": "goal y in metres, in the maze's frame",
-    "robot_x": "robot x in metres, in the maze's frame",
-    "robot_y": "robot y in metres, in the maze's frame",
-    "goal_distance": "straight-line distance robot to goal in metres",
-    "heading_sin": "sin of the heading (radians, counter-clockwise from +x)",
-    "heading_cos": "cos of the heading",
-    "goal_bearing_sin": "sin of the goal's direction minus the heading",
-    "goal_bearing_cos": "cos of the goal's direction minus the heading",
-    "waypoint_bearing_sin": "sin of the waypoint's direction minus the heading (the waypoint: "
-    "about waypoint_distance_m metres ahead on a shortest path, from a planner)",
-    "waypoint_bearing_cos": "cos of the waypoint's direction minus the heading",
-    "waypoint_distance": "straight-line distance robot to waypoint in metres",
-    **{
-        f"last_action_{name}": f"1 if the previous action was {name}, else 0 (0 after a reset)"
-        for name in robot_env.ACTION_NAMES
-    },
-    "robot_radius": "the robot's radius in metres",
-}
-
-
-def grid_layout(env: grid_maze.GridMaze, params: grid_maze.GridMazeParams) -> list[dict]:
-    """A GridMaze observation value by value (its ``get_obs``): rows and columns are cells
-    (row 0 at the top), ``blocked_*`` 1 where that move collides (an obstacle or the edge)."""
-    s, mode = env.size, env.config.obs_mode
-    inv = 1.0 / max(s - 1, 1)
-    moves = MOVES
-    if mode == "paper":
-        obstacles = params.bank.obstacle_cells.shape[1]
-        entries = [_entry(n, inv) for n in ("robot_x", "robot_y", "goal_x", "goal_y")]
-        for i in range(obstacles):
-            entries += [_entry(f"obstacle_{axis}", inv, obstacle=i) for axis in "xy"]
-        return entries
-    tail = [_entry(f"blocked_{m}") for m in moves] + [_entry("goal_drow"), _entry("goal_dcol")]
-    if mode == "index":
-        cells = ("robot_row", "robot_col", "goal_row", "goal_col")
-        return [_entry(n, categories=s) for n in cells] + tail
-    if mode == "onehot":
-        cells = ("robot_row", "robot_col", "goal_row", "goal_col")
-        return [_entry(f"{n}_is", category=k) for n in cells for k in range(s)] + tail
-    r = env.config.sensor_radius
-    window = [
-        _entry("occupied", offset=[dr, dc]) for dr in range(-r, r + 1) for dc in range(-r, r + 1)
-    ]
-    runs = [_entry(f"free_cells_{m}", inv) for m in moves]
-    entries = window + runs + [_entry("goal_drow", inv), _entry("goal_dcol", inv)]
-    k = env.config.waypoint_cells
-    if k:  # the planner's hint: offset to the cell k moves ahead on a shortest path, / k
-        entries += [_entry("waypoint_drow", 1.0 / k), _entry("waypoint_dcol", 1.0 / k)]
-    return entries
-
-
-GRID_QUANTITIES = {
-    **{
-        f"{who}_{axis}": f"the {who}'s {name} (0 at the {edge}), a category"
-        for who in ("robot", "goal")
-        for axis, name, edge in (("row", "row", "top"), ("col", "column", "left"))
-    },
-    **{
-        f"{who}_{axis}_is": f"1 where the {who}'s {name} is `category`"
-        for who in ("robot", "goal")
-        for axis, name in (("row", "row"), ("col", "column"))
-    },
-    **{f"blocked_{m}": f"1 where moving {m} collides (an obstacle or the edge)" for m in MOVES},
-    "goal_drow": "goal row minus robot row, in cells",
-    "goal_dcol": "goal column minus robot column, in cells",
-    "waypoint_drow": "row of the cell `waypoint_cells` moves ahead on a shortest path to the "
-    "goal (the goal once nearer), minus the robot's row",
-    "waypoint_dcol": "its column minus the robot's column",
-    "occupied": "1 where the cell at `offset` (drow, dcol) from the robot is an obstacle or "
-    "off the grid",
-    **{f"free_cells_{m}": f"free cells in a line {m} of the robot" for m in MOVES},
-    "robot_x": "the robot's column",
-    "robot_y": "the robot's row",
-    "goal_x": "the goal's column",
-    "goal_y": "the goal's row",
-    "obstacle_x": "obstacle `obstacle`'s column (the layout's, fixed)",
-    "obstacle_y": "obstacle `obstacle`'s row",
-}
-
-
-def observation_metadata(env: Any, params: Any) -> dict[str, Any]:
-    """The observation's layout: ``entries`` (one per input value, in order: ``index``,
-    ``name``, ``scale``, ``clip`` and the entry's own fields; robot entries have ``frame``,
-    0 the oldest), the frame stacking and what each name means."""
-    if isinstance(env, robot_env.RobotNav):
-        frame = robot_frame_layout(env)
-        frames = env.config.frames
-        entries = [
-            {"index": f * len(frame) + i, "frame": f, **e}
-            for f in range(frames)
-            for i, e in enumerate(frame)
-        ]
-        return {
-            "size": len(entries),
-            "frames": frames,
-            "frame_size": len(frame),
-            "stacking": "the last `frames` frames, oldest first; after a reset every frame is "
-            "the first one",
-            "env_dtype": "float32",
-            "entries": entries,
-            "quantities": ROBOT_QUANTITIES,
-            "value": "clip(raw quantity x scale) where clip is given, else raw x scale",
-        }
-    if isinstance(env, grid_maze.GridMaze):
-        entries = [{"index": i, **e} for i, e in enumerate(grid_layout(env, params))]
-        return {
-            "size": len(entries),
-            "frames": 1,
-            "frame_size": len(entries),
-            "obs_mode": env.config.obs_mode,
-            "env_dtype": str(np.dtype(env.observation_space(params).dtype)),
-            "entries": entries,
-            "quantities": GRID_QUANTITIES,
-            "value": "raw quantity x scale",
-        }
-    raise ValueError(f"{type(env).__name__}: no observation layout known for this env")
-
-
-def action_metadata(env: Any) -> list[dict[str, Any]]:
-    """What each action index does: robot speeds (m/s, rad/s), or a grid move (cells)."""
-    if isinstance(env, robot_env.RobotNav):
-        c = env.config
-        speeds = ((c.speed, 0.0), (-c.speed, 0.0), (0.0, c.turn_speed), (0.0, -c.turn_speed))
-        return [
-            {"index": i, "name": n, "v_mps": v, "omega_radps": w}
-            for i, (n, (v, w)) in enumerate(zip(robot_env.ACTION_NAMES, speeds, strict=True))
-        ]
-    return [
-        {"index": i, "name": n, "drow": int(d[0]), "dcol": int(d[1])}
-        for i, (n, d) in enumerate(zip(grid_maze.ACTION_NAMES, grid_maze.MOVES, strict=True))
-    ]
-
-
-def sensor_metadata(env: Any) -> dict[str, Any] | None:
-    """The robot's lidar, frames and control period as the policy was trained with them."""
-    if not isinstance(env, robot_env.RobotNav):
-        return None
-    c = env.config
-    return {
-        "num_lasers": c.num_lasers,
-        "laser_fov_deg": c.laser_fov,
-        "laser_range_m": c.laser_range,
-        "beam_angles_rad": [float(a) for a in np.asarray(env.angles, np.float64)],
-        "beam_origin": "the robot's centre",
-        "angle_convention": "radians from the heading, counter-clockwise (left) positive; for a "
-        "field of view under 360 degrees index 0 is the rightmost beam",
-        "frames": c.frames,
-        "control_period_s": c.dt,
-        "robot_radius_m": c.radius,
-        "goal_radius_m": c.goal_radius,
-        "arena_m": [float(v) for v in env.arena] if c.obs_absolute else None,
-        "waypoint_distance_m": c.waypoint_distance or None,
-        "waypoint_moves": c.waypoint_moves if c.waypoint_distance else None,
-    }
 
 
 def _jsonable(value: Any) -> Any:
@@ -309,9 +104,9 @@ def policy_metadata(trainer: Any, source: dict[str, Any] | None = None) -> dict[
             "env_config": None if env_config is None else _config_dict(env_config),
             "algo": config.algo,
             "network": network,
-            "observation": observation_metadata(env, env_params),
-            "actions": action_metadata(env),
-            "sensors": sensor_metadata(env),
+            "observation": env.observation_layout(env_params),
+            "actions": env.action_layout(),
+            "sensors": env.sensor_layout(),
             "source": {"jaxnav_version": __version__, **(source or {})},
         }
     )

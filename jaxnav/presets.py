@@ -61,15 +61,8 @@ ROBOT_PQN: dict[str, Any] = {
 
 # PQN at a GPU's scale for RobotNav-v0, the generalist (docs/evaluation.md: "The generalist robot").
 # 8192 envs x 32 steps; 16 minibatches of 16,384 x 4 epochs: 64 gradient steps per 262,144
-# transitions at lr 2e-3. With 16 steps of 16,384 envs and 8 minibatches x 2 epochs the run was
-# 6x faster but made only 6,000 gradient steps in 100M env steps and plateaued near 0.4 success;
-# 64 minibatches of 4,096 (256 steps) learn a little more per env step (held-out 0.963 vs
-# 0.951 at 100M) but run at 2.9M env steps/s against 5.0M, and in equal time the 64 larger
-# steps win (839M steps in 167 s: 0.978 held-out, 0.91 on RobotSimple-v0; 419M in 144 s:
-# 0.976, 0.81). The wider network (1024-512-256) in bfloat16 took held-out success from 0.91
-# to 0.96 (benchmarks/results/generalist_sweep_h100.md: rows 17-19, and 20-25 for the
-# minibatches and steps). The fused LayerNorm (Pallas kernels on a GPU) trains faster with
-# equal success (row 29 against row 28).
+# transitions. Why these sizes, the wider network and the fused LayerNorm: docs/performance.md
+# ("Why the training code is shaped as it is") and benchmarks/results/generalist_sweep_h100.md.
 GENERALIST_PQN: dict[str, Any] = {
     **PQN,
     "hidden_sizes": (1024, 512, 256),

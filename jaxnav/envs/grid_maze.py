@@ -362,6 +362,25 @@ class GridMaze(Environment[GridMazeState, GridMazeParams]):
 
     stochastic_step = False  # moves are deterministic
 
+    def observation_layout(self, params: GridMazeParams) -> dict[str, Any]:
+        entries = [{"index": i, **e} for i, e in enumerate(grid_layout(self, params))]
+        return {
+            "size": len(entries),
+            "frames": 1,
+            "frame_size": len(entries),
+            "obs_mode": self.config.obs_mode,
+            "env_dtype": str(np.dtype(self.observation_space(params).dtype)),
+            "entries": entries,
+            "quantities": GRID_QUANTITIES,
+            "value": "raw quantity x scale",
+        }
+
+    def action_layout(self) -> list[dict[str, Any]]:
+        return [
+            {"index": i, "name": n, "drow": int(d[0]), "dcol": int(d[1])}
+            for i, (n, d) in enumerate(zip(ACTION_NAMES, MOVES, strict=True))
+        ]
+
     def __init__(self, config: GridMazeConfig | None = None, name: str = "GridMaze-v0"):
         """``config`` as ``jaxnav.make`` validated it (or the default one)."""
         self.config = default_config() if config is None else config
@@ -596,3 +615,72 @@ class GridMaze(Environment[GridMazeState, GridMazeParams]):
         cell = state.pos + bank.waypoint_offset[at].astype(jnp.int32)  # precomputed: one gather
         unknown = state.pos + jnp.clip(state.goal - state.pos, -k, k)
         return jnp.where(slot >= 0, cell, unknown)
+
+
+# ------------------------------------------------------------------ what exports describe
+def _entry(name: str, scale: float = 1.0, **more: Any) -> dict[str, Any]:
+    return {"name": name, "scale": scale, "clip": None, **more}
+
+
+def grid_layout(env: GridMaze, params: GridMazeParams) -> list[dict]:
+    """A GridMaze observation value by value (its ``get_obs``): rows and columns are cells
+    (row 0 at the top), ``blocked_*`` 1 where that move collides (an obstacle or the edge)."""
+    s, mode = env.size, env.config.obs_mode
+    inv = 1.0 / max(s - 1, 1)
+    moves = ACTION_NAMES
+    if mode == "paper":
+        obstacles = params.bank.obstacle_cells.shape[1]
+        entries = [_entry(n, inv) for n in ("robot_x", "robot_y", "goal_x", "goal_y")]
+        for i in range(obstacles):
+            entries += [_entry(f"obstacle_{axis}", inv, obstacle=i) for axis in "xy"]
+        return entries
+    tail = [_entry(f"blocked_{m}") for m in moves]
+    tail += [_entry("goal_drow"), _entry("goal_dcol")]
+    if mode == "index":
+        cells = ("robot_row", "robot_col", "goal_row", "goal_col")
+        return [_entry(n, categories=s) for n in cells] + tail
+    if mode == "onehot":
+        cells = ("robot_row", "robot_col", "goal_row", "goal_col")
+        return [_entry(f"{n}_is", category=k) for n in cells for k in range(s)] + tail
+    r = env.config.sensor_radius
+    window = [
+        _entry("occupied", offset=[dr, dc]) for dr in range(-r, r + 1) for dc in range(-r, r + 1)
+    ]
+    runs = [_entry(f"free_cells_{m}", inv) for m in moves]
+    entries = window + runs + [_entry("goal_drow", inv), _entry("goal_dcol", inv)]
+    k = env.config.waypoint_cells
+    if k:  # the planner's hint: offset to the cell k moves ahead on a shortest path, / k
+        entries += [_entry("waypoint_drow", 1.0 / k), _entry("waypoint_dcol", 1.0 / k)]
+    return entries
+
+
+GRID_QUANTITIES = {
+    **{
+        f"{who}_{axis}": f"the {who}'s {name} (0 at the {edge}), a category"
+        for who in ("robot", "goal")
+        for axis, name, edge in (("row", "row", "top"), ("col", "column", "left"))
+    },
+    **{
+        f"{who}_{axis}_is": f"1 where the {who}'s {name} is `category`"
+        for who in ("robot", "goal")
+        for axis, name in (("row", "row"), ("col", "column"))
+    },
+    **{
+        f"blocked_{m}": f"1 where moving {m} collides (an obstacle or the edge)"
+        for m in ACTION_NAMES
+    },
+    "goal_drow": "goal row minus robot row, in cells",
+    "goal_dcol": "goal column minus robot column, in cells",
+    "waypoint_drow": "row of the cell `waypoint_cells` moves ahead on a shortest path to the "
+    "goal (the goal once nearer), minus the robot's row",
+    "waypoint_dcol": "its column minus the robot's column",
+    "occupied": "1 where the cell at `offset` (drow, dcol) from the robot is an obstacle or "
+    "off the grid",
+    **{f"free_cells_{m}": f"free cells in a line {m} of the robot" for m in ACTION_NAMES},
+    "robot_x": "the robot's column",
+    "robot_y": "the robot's row",
+    "goal_x": "the goal's column",
+    "goal_y": "the goal's row",
+    "obstacle_x": "obstacle `obstacle`'s column (the layout's, fixed)",
+    "obstacle_y": "obstacle `obstacle`'s row",
+}

@@ -124,6 +124,7 @@ from jaxnav.envs.robot import (
     generators,
     geometry,
     jaxnav_levels,
+    layout,
     mazes,
     occupancy,
     shortest_paths,
@@ -133,7 +134,7 @@ ACTION_NAMES = ("forward", "backward", "turn_left", "turn_right")
 MAZES = ("simple", "complex", "random", "file", "families", "jaxnav")
 BACKENDS = ("kinematic", "mjx")
 LASER_SCALE = 10.0 * math.sqrt(2.0)  # Table I: sensors normalized by their maximum variation
-MAX_BANK_CELLS = 4_000_000  # random mazes are generated in Python: about 25 s at this size
+MAX_BANK_CELLS = 4_000_000  # random mazes are generated in Python: bounds a bank's build time
 MAX_STEP_CELLS = 100  # a control step may cross at most this many cells (bounds the sub-steps)
 MAX_WAYPOINT_DISTANCE = 10.0  # metres
 FIT_MARGIN = 0.05  # metres a drawn radius leaves each side of a maze's narrowest gap
@@ -869,6 +870,15 @@ class RobotNav(Environment[RobotState, RobotParams]):
         return frame.at[:n].set(ranges / c.laser_range)
 
     # -- evaluation hooks -----------------------------------------------------------
+    def observation_layout(self, params: RobotParams) -> dict[str, Any]:
+        return layout.observation_layout(self, ACTION_NAMES)
+
+    def action_layout(self) -> list[dict[str, Any]]:
+        return layout.action_layout(self, ACTION_NAMES)
+
+    def sensor_layout(self) -> dict[str, Any]:
+        return layout.sensor_layout(self)
+
     def num_layouts(self, params: RobotParams) -> int:
         return params.bank.num_mazes
 
