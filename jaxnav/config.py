@@ -9,6 +9,7 @@ from typing import Any
 
 import jax
 
+from jaxnav import pretrained
 from jaxnav.agents.dqn import COMPUTE_DTYPES
 from jaxnav.algos import ALGOS as ALGORITHMS
 from jaxnav.algos.base import MAX_UPDATES, Algorithm
@@ -72,6 +73,13 @@ def widths(v: Any) -> str | None:
     return None if ok else "must be one or more integers in [1, 65536]"
 
 
+def policy_source(v: Any) -> str | None:
+    """Empty, a shipped policy's name or an npz file's path (read when a run starts)."""
+    ok = isinstance(v, str) and (not v or v.endswith(".npz") or v in pretrained.names())
+    shipped = ", ".join(pretrained.names())
+    return None if ok else f"must be a shipped policy ({shipped}) or an npz file"
+
+
 def _algo_help() -> str:
     """``algo``'s help: "dqn (its summary), pqn (...) or ppo (...)", from the registry."""
     named = [f"{name} ({algorithm.summary})" for name, algorithm in ALGORITHMS.items()]
@@ -124,6 +132,13 @@ class TrainConfig:
         "units of a GRU cell between the MLP and the heads, its hidden state carried through "
         "each episode and reset at its start (0: no memory); pqn and ppo",
         integer(0, 65536),
+    )
+    init_from: str = setting(
+        "",
+        "start from the weights of a shipped policy (python -m jaxnav.pretrained lists them) or "
+        "an exported npz, to fine-tune it: its network and observation must be the run's; "
+        "optimizer, exploration and replay start afresh",
+        policy_source,
     )
     loss: str = setting("huber", "huber or mse", one_of("huber", "mse"))
     # replay

@@ -33,11 +33,10 @@ from pathlib import Path
 from typing import Any
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from jaxnav import run_dir
-from jaxnav.agents.dqn import QNetwork, check_input_fits
+from jaxnav.agents.dqn import QNetwork, check_input_fits, flax_params
 from jaxnav.config import TrainConfig
 from jaxnav.deploy.policy import (
     CHECKSUM_KEY,
@@ -140,30 +139,6 @@ def policy_arrays(network: QNetwork, params: Any) -> dict[str, np.ndarray]:
         last = p[f"Dense_{len(network.hidden_sizes)}"]
         out["head_kernel"], out["head_bias"] = last["kernel"], last["bias"]
     return {k: np.asarray(v, np.float32) for k, v in out.items()}
-
-
-def flax_params(arrays: dict[str, np.ndarray], network: dict[str, Any]) -> dict[str, Any]:
-    """The inverse of ``policy_arrays``: ``QNetwork`` parameters from exported arrays and the
-    metadata's ``network`` (to evaluate or render an exported policy with JAX)."""
-    p: dict[str, Any] = {}
-    n = len(network["hidden_sizes"])
-    for i in range(n):
-        p[f"Dense_{i}"] = {"kernel": arrays[f"dense{i}_kernel"], "bias": arrays[f"dense{i}_bias"]}
-        if network["layer_norm"]:
-            scale, bias = arrays[f"norm{i}_scale"], arrays[f"norm{i}_bias"]
-            p[f"LayerNorm_{i}"] = {"scale": scale, "bias": bias}
-    if network.get("memory"):
-        p["memory"] = {
-            gate: {"kernel": arrays[f"gru_{gate}_kernel"]}
-            | ({"bias": arrays[f"gru_{gate}_bias"]} if biased else {})
-            for gate, biased in GRU_GATES.items()
-        }
-    if network["dueling"]:
-        for head in ("value", "advantage"):
-            p[head] = {"kernel": arrays[f"{head}_kernel"], "bias": arrays[f"{head}_bias"]}
-    else:
-        p[f"Dense_{n}"] = {"kernel": arrays["head_kernel"], "bias": arrays["head_bias"]}
-    return {"params": jax.tree.map(jnp.asarray, p)}
 
 
 def env_for(

@@ -176,6 +176,11 @@ def _key(trainer: Trainer, keys: jax.Array) -> str:
     files = getattr(trainer.env.config, "input_files", list)()
     if files:
         parts["maze_files"] = [hashlib.sha256(Path(f).read_bytes()).hexdigest() for f in files]
+    if trainer.init_params is not None:  # init_from's weights are constants of the program
+        digest = hashlib.sha256()
+        for leaf in jax.tree.leaves(trainer.init_params):
+            digest.update(np.asarray(leaf).tobytes())
+        parts["init_params"] = digest.hexdigest()
     text = json.dumps(parts, sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:32]
 

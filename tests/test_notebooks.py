@@ -15,6 +15,7 @@ SMALL = {  # notebook -> code overriding its parameters cell, for CI speed
     "robot": "TOTAL_TIMESTEPS = 1_000\nNUM_SEEDS = 2\nHIDDEN_SIZES = (32,)\n"
     "EVAL_EPISODES = 10\nMJX_STEPS = 12",
     "experiments": "",  # reads the committed results directory
+    "slam_to_policy": "EPISODES = 50\nFINE_TUNE_STEPS = 8_192\nDRIVE_EPISODES = 4",
 }
 
 

@@ -42,7 +42,12 @@ def other_value(f: dataclasses.Field) -> tuple[str, object]:
         return str(d + 1), d + 1
     if isinstance(d, float):
         return str(d / 2), d / 2
-    choices = {"env": "RobotSimple-v0", "algo": "pqn", "compute_dtype": "bfloat16"}
+    choices = {
+        "env": "RobotSimple-v0",
+        "algo": "pqn",
+        "compute_dtype": "bfloat16",
+        "init_from": "gridmaze-dqn",
+    }
     value = choices.get(f.name) or {"huber": "mse", "adam": "sgd"}[d]
     return value, value
 

@@ -2,10 +2,14 @@
 
 A 12 m x 8 m floor at 0.05 m a pixel (240 x 160 pixels): three rooms along the top, a hall
 below split by a wall, a table and a pillar, and an unexplored patch in the top-right room.
-Shades as map_saver writes them: free 254, occupied 0, unknown 205 (thresholds 0.65 / 0.196,
-trinary). Everything is drawn on a 0.4 m lattice (8 pixels), the default cell of
-``jaxnav.envs.robot.occupancy``, with walls 0.1 m thick, so the maze needs 24 wall slots at
-most (``RobotMaze-v0``'s default). Run from anywhere: ``python examples/maps/make_floor_plan.py``.
+Shades as map_saver writes them: free 254, occupied 0, unknown 205 (trinary), thresholds
+0.65 / 0.196 as ROS 1's map_saver writes them. Nav2's map_saver writes free_thresh 0.25, with
+which the unknown shade (occupancy (255 - 205) / 255 = 0.196) reads back as free, in Nav2's
+map_server and in ``jaxnav.envs.robot.occupancy`` alike (notebooks/slam_to_policy.ipynb counts
+the pixels it would open up); 0.196 keeps unknown space unknown. Everything is drawn on a 0.4 m
+lattice (8 pixels), the default cell of ``jaxnav.envs.robot.occupancy``, with walls 0.1 m
+thick, so the maze needs 24 wall slots at most (``RobotMaze-v0``'s default). Run from
+anywhere: ``python examples/maps/make_floor_plan.py``.
 """
 
 from __future__ import annotations

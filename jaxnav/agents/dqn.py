@@ -20,6 +20,7 @@ from flax import struct
 from jax.sharding import Mesh
 
 from jaxnav.agents.layer_norm import layer_norm_relu
+from jaxnav.deploy.policy import GRU_GATES
 
 
 def expand_onehot(obs: jax.Array, onehot_sizes: Sequence[int]) -> jax.Array:
@@ -57,6 +58,31 @@ def check_input_fits(env_id: str, have: InputSpec, want: InputSpec) -> None:
         f"--env {env_id}: observations {describe(*have)} do not fit the run's network "
         f"{describe(*want)}"
     )
+
+
+def flax_params(arrays: dict[str, Any], network: dict[str, Any]) -> dict[str, Any]:
+    """The inverse of ``jaxnav.export.policy_arrays``: ``QNetwork`` parameters from exported
+    arrays and the metadata's ``network`` (to evaluate, render or fine-tune an exported policy
+    with JAX)."""
+    p: dict[str, Any] = {}
+    n = len(network["hidden_sizes"])
+    for i in range(n):
+        p[f"Dense_{i}"] = {"kernel": arrays[f"dense{i}_kernel"], "bias": arrays[f"dense{i}_bias"]}
+        if network["layer_norm"]:
+            scale, bias = arrays[f"norm{i}_scale"], arrays[f"norm{i}_bias"]
+            p[f"LayerNorm_{i}"] = {"scale": scale, "bias": bias}
+    if network.get("memory"):
+        p["memory"] = {
+            gate: {"kernel": arrays[f"gru_{gate}_kernel"]}
+            | ({"bias": arrays[f"gru_{gate}_bias"]} if biased else {})
+            for gate, biased in GRU_GATES.items()
+        }
+    if network["dueling"]:
+        for head in ("value", "advantage"):
+            p[head] = {"kernel": arrays[f"{head}_kernel"], "bias": arrays[f"{head}_bias"]}
+    else:
+        p[f"Dense_{n}"] = {"kernel": arrays["head_kernel"], "bias": arrays["head_bias"]}
+    return {"params": jax.tree.map(jnp.asarray, p)}
 
 
 COMPUTE_DTYPES = ("float32", "bfloat16")

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable
-from functools import partial
+from functools import cached_property, partial
 from typing import Any
 
 import jax
@@ -26,11 +26,12 @@ from flax import struct
 from jax.sharding import NamedSharding
 from jax.sharding import PartitionSpec as P
 
-from jaxnav import sharding
+from jaxnav import pretrained, sharding
 from jaxnav.agents import dqn
 from jaxnav.algos import backend
 from jaxnav.algos.base import LossFn, TrainState, Transitions
 from jaxnav.config import HPARAMS, TrainConfig
+from jaxnav.deploy.policy import Policy
 from jaxnav.registration import make
 from jaxnav.sharding import ENVS, SEEDS
 
@@ -189,6 +190,51 @@ class Trainer:
                 f"{have / 2**30:.1f} GiB"
             )
 
+    @cached_property
+    def init_params(self) -> Any:
+        """The weights of ``config.init_from`` (flax's tree), None without one; ``ValueError``
+        (one line naming it) for a policy that is not found or whose network, observation or
+        actions are not this run's. Read when a run starts (``init``), not to evaluate or export
+        a trained one."""
+        name = self.config.init_from
+        if not name:
+            return None
+        if os.path.exists(name) or name.endswith(".npz"):
+            if not os.path.isfile(name):
+                raise ValueError(f"init_from={name!r}: no such policy file")
+            policy = Policy.load(name)
+        elif name in pretrained.names():
+            policy = pretrained.load(name)
+        else:
+            raise ValueError(
+                f"init_from={name!r}: neither an npz file nor a shipped policy "
+                f"({', '.join(pretrained.names())})"
+            )
+        c, net = self.config, policy.network
+        theirs = {k: net.get(k, 0) for k in ("hidden_sizes", "dueling", "layer_norm", "memory")}
+        ours = {k: getattr(c, k) for k in theirs}
+        theirs["hidden_sizes"] = tuple(theirs["hidden_sizes"])
+        for k in theirs:
+            if theirs[k] != ours[k]:
+                raise ValueError(
+                    f"init_from={name!r}: its network has {k}={theirs[k]!r}, this run's "
+                    f"{k}={ours[k]!r}"
+                )
+        onehot = net["onehot_sizes"]
+        want = (net["obs_size"], None if onehot is None else tuple(onehot))
+        if want != self.network_input:
+            try:
+                dqn.check_input_fits(c.env, self.network_input, want)
+            except ValueError as e:
+                raise ValueError(f"init_from={name!r}: {e}") from None
+        actions = len(policy.metadata["actions"])
+        if actions != self.env.num_actions:
+            raise ValueError(
+                f"init_from={name!r}: its policy has {actions} actions, --env {c.env} "
+                f"{self.env.num_actions}"
+            )
+        return dqn.flax_params(policy.arrays, net)
+
     def _kept_sizes(self) -> str:
         """The fields that size what training keeps: the algorithm's transitions (a replay
         buffer, a rollout) and the network."""
@@ -227,6 +273,8 @@ class Trainer:
         hp = self.default_hparams() if hparams is None else hparams
         k_net, k_env, k_run = jax.random.split(key, 3)
         params = self.network.init(k_net, jnp.zeros((1, self.obs_size)))
+        if self.init_params is not None:  # fine-tuning: the same tree, other values
+            params = jax.tree.map(lambda a, b: b.astype(a.dtype), params, self.init_params)
         # the algorithm's key derived, not split off: the runs' other keys stay as they were
         k_algo = jax.random.fold_in(k_net, 1)
         obs, env_state = jax.vmap(self.env.reset, in_axes=(0, None))(

@@ -239,7 +239,10 @@ def _prepare_training(
             f"{per_log} env steps)"
         )
     args.checkpoint_every = every  # the run's checkpointing records the steps it keeps
-    return args, config, out, partial, [n for n in notes if n], Trainer(config)
+    trainer = Trainer(config)
+    if args.resume is None:
+        trainer.init_params  # noqa: B018 (init_from's policy is checked before anything is written)
+    return args, config, out, partial, [n for n in notes if n], trainer
 
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
