@@ -87,8 +87,12 @@ def test_worst_ten_percent_needs_five_episodes_of_every_maze_played():
     skipped = layout != 1
     row = summarize(episodes_of(layout[skipped], np.asarray(success)[skipped]))
     assert row["mazes"] == 2 and row["worst10_success"] == pytest.approx(0.2)
-    # one maze, many episodes
-    assert summarize(episodes_of(np.zeros(8), [1] * 6 + [0] * 2))["worst10_success"] == 0.75
+    # one maze, many episodes: n/a, not the success rate again
+    one = summarize(episodes_of(np.zeros(8), [1] * 6 + [0] * 2))
+    assert one["worst10_success"] is None and one["success_rate"] == 0.75
+    no_layout = episodes_of(np.zeros(8), [1] * 6 + [0] * 2)
+    del no_layout["layout"]
+    assert summarize(no_layout)["worst10_success"] is None
 
 
 @pytest.mark.parametrize("episodes, mazes", [(12, 4), (13, 4), (3, 1)])

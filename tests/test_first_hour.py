@@ -229,6 +229,16 @@ def test_progress_line_says_its_success_is_epsilon_greedy(tmp_path, capsys):
     assert train_main(flags) == 0
     out = capsys.readouterr().out
     assert "train success (eps-greedy)" in out and "trained (greedy)" in out
+    # units: episode length in env steps, times in seconds
+    progress = [line for line in out.splitlines() if line.startswith("[")]
+    assert progress and all(" steps | " in line and "s] steps" in line for line in progress)
+    assert all("length" in line and line.split("length")[1].split("|")[0].strip().endswith(
+        "steps") for line in progress)
+    # one maze: the worst 10% of mazes is n/a, not the success rate again
+    header = next(line for line in out.splitlines() if line.startswith("| policy |"))
+    row = next(line for line in out.splitlines() if line.startswith("| trained (greedy) |"))
+    cells = dict(zip(header.split("|"), row.split("|")))
+    assert cells[" worst10_success "].strip() == "n/a"
 
 
 def test_no_final_evaluation_finishes_with_nulls_not_zeros(tmp_path, capsys):
