@@ -237,7 +237,7 @@ def test_progress_line_says_its_success_is_epsilon_greedy(tmp_path, capsys):
     # one maze: the worst 10% of mazes is n/a, not the success rate again
     header = next(line for line in out.splitlines() if line.startswith("| policy |"))
     row = next(line for line in out.splitlines() if line.startswith("| trained (greedy) |"))
-    cells = dict(zip(header.split("|"), row.split("|")))
+    cells = dict(zip(header.split("|"), row.split("|"), strict=True))
     assert cells[" worst10_success "].strip() == "n/a"
 
 
