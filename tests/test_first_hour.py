@@ -413,3 +413,20 @@ def test_a_second_ctrl_c_says_it_stops_without_saving():
     assert done.returncode == -signal.SIGINT
     assert "saving a checkpoint after this logging interval" in done.stderr
     assert "SIGINT again: stopping now without saving" in done.stderr
+
+
+def test_experiment_tables_state_their_units():
+    from jaxnav.experiments import LABELS, METRICS, results_markdown
+
+    agent = next(iter(LABELS))
+    row = {m: {"mean": 1.0, "ci95": None, "seeds": 1} for m in METRICS}
+    record = {"env": "GridMaze-v0", "metrics": {"env_steps": [[64]]}, "compile_s": 1.0,
+              "train_s": 2.0}  # fmt: skip
+    results = {
+        "experiment": "paper-grid", "seeds": [0], "command": "x", "wall_s": 3.0,
+        "suites": {"grid": {"agents": {agent: row}}},
+        "training": {"grid": {agent: record}},
+    }  # fmt: skip
+    table = results_markdown(results)
+    assert "mean steps (successes)" in table and "mean episode length (steps)" in table
+    assert "compile s | train s" in table and "Wall time 3 s" in table
