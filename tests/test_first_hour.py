@@ -430,3 +430,13 @@ def test_experiment_tables_state_their_units():
     table = results_markdown(results)
     assert "mean steps (successes)" in table and "mean episode length (steps)" in table
     assert "compile s | train s" in table and "Wall time 3 s" in table
+
+
+def test_statistics_no_seed_measured_are_not_printed(capsys):
+    from jaxnav.evaluate import print_seed_statistics, seed_statistics
+
+    print_seed_statistics(
+        {"success_rate": seed_statistics([0.9, 1.0]), "worst10_success": seed_statistics([None] * 2)}
+    )
+    out = capsys.readouterr().out
+    assert "success_rate over 2 seeds" in out and "worst10_success" not in out

@@ -377,8 +377,11 @@ def format_interval(stat: dict[str, Any], key: str) -> str:
 
 
 def print_seed_statistics(stats: dict[str, dict[str, Any]]) -> None:
-    """Per metric over seeds: mean and IQM with 95% bootstrap intervals, and the seed count."""
+    """Per metric over seeds: mean and IQM with 95% bootstrap intervals, and the seed count;
+    nothing for a metric no seed measured (``worst10_success`` of one maze)."""
     for metric, st in stats.items():
+        if not st["seeds"]:
+            continue
         print(
             f"{metric} over {st['seeds']} seeds: mean {format_interval(st, 'mean')}, "
             f"IQM {format_interval(st, 'iqm')} (95% bootstrap intervals)"
