@@ -435,8 +435,7 @@ def test_experiment_tables_state_their_units():
 def test_statistics_no_seed_measured_are_not_printed(capsys):
     from jaxnav.evaluate import print_seed_statistics, seed_statistics
 
-    print_seed_statistics(
-        {"success_rate": seed_statistics([0.9, 1.0]), "worst10_success": seed_statistics([None] * 2)}
-    )
+    stats = {"success_rate": [0.9, 1.0], "worst10_success": [None, None]}
+    print_seed_statistics({k: seed_statistics(v) for k, v in stats.items()})
     out = capsys.readouterr().out
     assert "success_rate over 2 seeds" in out and "worst10_success" not in out
