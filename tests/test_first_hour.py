@@ -439,3 +439,13 @@ def test_statistics_no_seed_measured_are_not_printed(capsys):
     print_seed_statistics({k: seed_statistics(v) for k, v in stats.items()})
     out = capsys.readouterr().out
     assert "success_rate over 2 seeds" in out and "worst10_success" not in out
+
+
+def test_the_random_agent_has_no_intervals_over_seeds(tmp_path, capsys):
+    out = tmp_path / "two"
+    assert train_main([*TINY_FLAGS, *STEPS, "--num-seeds", "2", "--out", str(out)]) == 0
+    capsys.readouterr()
+    assert evaluate_main([str(out), "--episodes", "8"]) == 0
+    assert "success_rate over 2 seeds" in capsys.readouterr().out
+    assert evaluate_main([str(out), "--episodes", "8", "--policy", "random"]) == 0
+    assert "over 2 seeds" not in capsys.readouterr().out
