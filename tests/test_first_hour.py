@@ -449,3 +449,14 @@ def test_the_random_agent_has_no_intervals_over_seeds(tmp_path, capsys):
     assert "success_rate over 2 seeds" in capsys.readouterr().out
     assert evaluate_main([str(out), "--episodes", "8", "--policy", "random"]) == 0
     assert "over 2 seeds" not in capsys.readouterr().out
+
+
+def test_readme_commands_run_as_written_no_placeholders():
+    """Each line of the README's bash blocks is a command to paste: no RUN or PATH to fill."""
+    blocks = README.read_text().split("```bash")[1:]
+    lines = [ln for b in blocks for ln in b.split("```")[0].splitlines() if ln.strip()]
+    assert len(lines) > 10
+    for line in lines:
+        words = line.split("#")[0].split()
+        holes = [w for w in words if "=" not in w and w.isupper() and len(w) > 2]
+        assert not holes, f"{line!r}: fill in {holes}"
