@@ -452,8 +452,10 @@ def test_the_random_agent_has_no_intervals_over_seeds(tmp_path, capsys):
 
 
 def test_readme_commands_run_as_written_no_placeholders():
-    """Each line of the README's bash blocks is a command to paste: no RUN or PATH to fill."""
-    blocks = README.read_text().split("```bash")[1:]
+    """Each line of the README's and docs' bash blocks is a command to paste: no RUN or PATH
+    to fill."""
+    pages = [README, *sorted((README.parent / "docs").glob("*.md"))]
+    blocks = [b for page in pages for b in page.read_text().split("```bash")[1:]]
     lines = [ln for b in blocks for ln in b.split("```")[0].splitlines() if ln.strip()]
     assert len(lines) > 10
     for line in lines:
