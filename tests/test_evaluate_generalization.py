@@ -253,7 +253,7 @@ def test_generalization_writes_a_table_per_family(robot_run, tmp_path, capsys):
     assert own["env_kwargs"]["backend"] == "kinematic" and own["env_kwargs"]["max_steps"] == 30
     simple = results["families"]["RobotSimple-v0"]
     assert simple["env_kwargs"] == {"backend": "kinematic", "max_steps": 30}  # no maze keys
-    assert 0.0 <= simple["mean"]["worst10_success"] <= 1.0
+    assert simple["mean"]["worst10_success"] is None  # one maze: n/a, not its success again
     assert len(simple["over_seeds"]["success_rate"]["iqm_ci95"]) == 2
     grid = results["families"]["GridMaze-v0"]
     assert grid["seeds"] == 0 and grid["skipped"]
