@@ -380,7 +380,7 @@ def results_markdown(results: dict[str, Any]) -> str:
     n_seeds = len(results["seeds"])
     head = (
         "| suite | agent | success | collision | timeout | mean return | mean steps "
-        "(successes) | mean episode length | path ratio | SPL |\n" + "|---" * 10 + "|\n"
+        "(successes) | mean episode length (steps) | path ratio | SPL |\n" + "|---" * 10 + "|\n"
     )
     lines = [
         f"# {results['experiment']}\n",

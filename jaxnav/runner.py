@@ -99,7 +99,7 @@ class Progress:
             f"[{elapsed:6.1f}s] steps {steps:>9,}/{total:,} ({100 * steps / total:3.0f}%) | "
             f"{sps:>8,.0f} steps/s | train success ({self.config.algorithm.acting}) "
             f"{mean('success_rate'):.3f} | "
-            f"return {mean('mean_return'):6.2f} | length {mean('mean_length'):5.1f} | "
+            f"return {mean('mean_return'):6.2f} | length {mean('mean_length'):5.1f} steps | "
             f"loss {mean('loss'):.4f} | eps {mean('epsilon'):.2f} | ETA {eta:4.0f}s",
             flush=True,
         )

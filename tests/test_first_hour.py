@@ -229,6 +229,16 @@ def test_progress_line_says_its_success_is_epsilon_greedy(tmp_path, capsys):
     assert train_main(flags) == 0
     out = capsys.readouterr().out
     assert "train success (eps-greedy)" in out and "trained (greedy)" in out
+    # units: episode length in env steps, times in seconds
+    progress = [line for line in out.splitlines() if line.startswith("[")]
+    assert progress and all(" steps | " in line and "s] steps" in line for line in progress)
+    assert all("length" in line and line.split("length")[1].split("|")[0].strip().endswith(
+        "steps") for line in progress)
+    # one maze: the worst 10% of mazes is n/a, not the success rate again
+    header = next(line for line in out.splitlines() if line.startswith("| policy |"))
+    row = next(line for line in out.splitlines() if line.startswith("| trained (greedy) |"))
+    cells = dict(zip(header.split("|"), row.split("|"), strict=True))
+    assert cells[" worst10_success "].strip() == "n/a"
 
 
 def test_no_final_evaluation_finishes_with_nulls_not_zeros(tmp_path, capsys):
@@ -403,3 +413,52 @@ def test_a_second_ctrl_c_says_it_stops_without_saving():
     assert done.returncode == -signal.SIGINT
     assert "saving a checkpoint after this logging interval" in done.stderr
     assert "SIGINT again: stopping now without saving" in done.stderr
+
+
+def test_experiment_tables_state_their_units():
+    from jaxnav.experiments import LABELS, METRICS, results_markdown
+
+    agent = next(iter(LABELS))
+    row = {m: {"mean": 1.0, "ci95": None, "seeds": 1} for m in METRICS}
+    record = {"env": "GridMaze-v0", "metrics": {"env_steps": [[64]]}, "compile_s": 1.0,
+              "train_s": 2.0}  # fmt: skip
+    results = {
+        "experiment": "paper-grid", "seeds": [0], "command": "x", "wall_s": 3.0,
+        "suites": {"grid": {"agents": {agent: row}}},
+        "training": {"grid": {agent: record}},
+    }  # fmt: skip
+    table = results_markdown(results)
+    assert "mean steps (successes)" in table and "mean episode length (steps)" in table
+    assert "compile s | train s" in table and "Wall time 3 s" in table
+
+
+def test_statistics_no_seed_measured_are_not_printed(capsys):
+    from jaxnav.evaluate import print_seed_statistics, seed_statistics
+
+    stats = {"success_rate": [0.9, 1.0], "worst10_success": [None, None]}
+    print_seed_statistics({k: seed_statistics(v) for k, v in stats.items()})
+    out = capsys.readouterr().out
+    assert "success_rate over 2 seeds" in out and "worst10_success" not in out
+
+
+def test_the_random_agent_has_no_intervals_over_seeds(tmp_path, capsys):
+    out = tmp_path / "two"
+    assert train_main([*TINY_FLAGS, *STEPS, "--num-seeds", "2", "--out", str(out)]) == 0
+    capsys.readouterr()
+    assert evaluate_main([str(out), "--episodes", "8"]) == 0
+    assert "success_rate over 2 seeds" in capsys.readouterr().out
+    assert evaluate_main([str(out), "--episodes", "8", "--policy", "random"]) == 0
+    assert "over 2 seeds" not in capsys.readouterr().out
+
+
+def test_readme_commands_run_as_written_no_placeholders():
+    """Each line of the README's and docs' bash blocks is a command to paste: no RUN or PATH
+    to fill."""
+    pages = [README, *sorted((README.parent / "docs").glob("*.md"))]
+    blocks = [b for page in pages for b in page.read_text().split("```bash")[1:]]
+    lines = [ln for b in blocks for ln in b.split("```")[0].splitlines() if ln.strip()]
+    assert len(lines) > 10
+    for line in lines:
+        words = line.split("#")[0].split()
+        holes = [w for w in words if "=" not in w and w.isupper() and len(w) > 2]
+        assert not holes, f"{line!r}: fill in {holes}"

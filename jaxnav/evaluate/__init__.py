@@ -187,8 +187,9 @@ def summarize(episodes: dict[str, jax.Array]) -> dict[str, float | None]:
     ``spl``: success weighted by path length (``spl``) over the episodes whose shortest path
     is known, None where none is.
     ``worst10_success``: ``worst_fraction_mean`` of the per-maze success rates
-    (``maze_success``), None where a maze was played fewer than ``MIN_EPISODES_PER_MAZE``
-    times (with one episode a maze's rate is 0 or 1 and the worst 10% is 0 by construction);
+    (``maze_success``), None where a single maze was played (it would repeat the success
+    rate) or a maze was played fewer than ``MIN_EPISODES_PER_MAZE`` times (with one episode a
+    maze's rate is 0 or 1 and the worst 10% is 0 by construction);
     ``mazes``: the mazes played.
     """
     ep = {k: np.asarray(v) for k, v in episodes.items()}
@@ -214,7 +215,9 @@ def summarize(episodes: dict[str, jax.Array]) -> dict[str, float | None]:
         "spl": spl(success, shortest, travelled),
         "mazes": float(len(played)),
         "worst10_success": (
-            worst_fraction_mean(per_maze, 0.1) if played.min() >= MIN_EPISODES_PER_MAZE else None
+            worst_fraction_mean(per_maze, 0.1)
+            if len(played) > 1 and played.min() >= MIN_EPISODES_PER_MAZE
+            else None
         ),
     }
     return out
@@ -374,8 +377,11 @@ def format_interval(stat: dict[str, Any], key: str) -> str:
 
 
 def print_seed_statistics(stats: dict[str, dict[str, Any]]) -> None:
-    """Per metric over seeds: mean and IQM with 95% bootstrap intervals, and the seed count."""
+    """Per metric over seeds: mean and IQM with 95% bootstrap intervals, and the seed count;
+    nothing for a metric no seed measured (``worst10_success`` of one maze)."""
     for metric, st in stats.items():
+        if not st["seeds"]:
+            continue
         print(
             f"{metric} over {st['seeds']} seeds: mean {format_interval(st, 'mean')}, "
             f"IQM {format_interval(st, 'iqm')} (95% bootstrap intervals)"

@@ -148,7 +148,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             rates = [r["maze_success"][i] for r in rows if r["maze_success"][i] is not None]
             rate = f"{sum(rates) / len(rates):.3f}" if rates else "not played"
             print(f"  success on {name}: {rate}")
-    if len(rows) > 1:
+    if len(rows) > 1 and args.policy != "random":  # the random agent is the same for every seed
         print_seed_statistics(stats)
     if out is not None:
         print(f"wrote {out}")
