@@ -29,6 +29,7 @@ import jax
 import numpy as np
 
 from benchmarks.common import machine_info
+from benchmarks.mapfree_sweep import outcome
 from jaxnav.config import TrainConfig
 from jaxnav.deploy.policy import Policy
 from jaxnav.envs.maze_algorithms import narrowest_gap
@@ -49,12 +50,6 @@ VARIANTS: list[tuple[str, dict[str, Any]]] = [
     ),
     ("waypoint 1 m ahead", {"waypoint_distance": 1.0}),
 ]
-
-
-def outcome(out: dict[str, Any], mask: np.ndarray | None = None) -> dict[str, float]:
-    keep = slice(None) if mask is None else mask
-    rates = {k: float(np.mean(np.asarray(out[k])[keep])) for k in ("success", "collision")}
-    return rates | {"timeout": float(np.mean(np.asarray(out["timeout"])[keep]))}
 
 
 def by_gap(policy_path: Path, episodes: int) -> dict[str, Any]:
