@@ -291,3 +291,30 @@ def test_red_team_smoke() -> None:
     assert len(results) >= len(picked)
     failed = [(r.area, r.name, r.why) for r in results if not r.passed]
     assert not failed, failed
+
+
+def test_memory_cost_times_both_networks_against_feed_forward(tmp_path: Path) -> None:
+    from benchmarks import memory_cost
+
+    out = tmp_path / "memory_cost.json"
+    argv = ["--memory", "8", "--num-envs", "16", "--iterations", "2", "--out", str(out)]
+    assert memory_cost.main(argv) == 0
+    rows = json.loads(out.read_text())["rows"]
+    assert [r["memory"] for r in rows] == [0, 8]
+    assert rows[0]["time_vs_feed_forward"] == 1.0 and rows[1]["time_vs_feed_forward"] > 0
+    assert all(r["env_steps"] == 16 * memory_cost.ROLLOUT * 2 for r in rows)
+
+
+def test_mapfree_gaps_splits_a_policy_by_narrowest_gap(tmp_path: Path, capsys) -> None:
+    from benchmarks import mapfree_gaps
+    from jaxnav import pretrained
+
+    assert mapfree_gaps.main([]) == 2  # nothing asked
+    policy = tmp_path / "robotnav-pqn.npz"
+    policy.write_bytes(pretrained.path("robotnav-pqn").read_bytes())
+    out = tmp_path / "gaps.jsonl"
+    assert mapfree_gaps.main(["--policy", str(policy), "--episodes", "8", "--out", str(out)]) == 0
+    row = json.loads(out.read_text())
+    split = {k: v for k, v in row.items() if k.startswith("narrowest gap")}
+    assert split and sum(v["episodes"] for v in split.values()) == 8
+    assert 0.0 <= row["all"]["success"] <= 1.0
