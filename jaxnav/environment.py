@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from typing import Any, Generic, TypeVar
+from typing import Any, ClassVar, Generic, TypeVar
 
 import jax
 import jax.numpy as jnp
@@ -60,6 +60,8 @@ ParamsT = TypeVar("ParamsT", bound=EnvParams)
 
 class Environment(Generic[StateT, ParamsT]):
     """Stateless environment: all episode data lives in ``state``, all settings in ``params``."""
+
+    family: ClassVar[str] = ""  # which presets train it (``jaxnav.presets``); "": none
 
     name: str = "Environment"
     # Whether ``step_env`` draws random numbers. If not, ``step`` hands its key to the

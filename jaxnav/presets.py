@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from jaxnav.registration import registered_envs
+from jaxnav.registration import env_family, registered_envs
 
 # DQN on the robot envs, chosen by measurement (benchmarks/results/robot_sweeps/): 3-step
 # returns and gamma 0.95 (1-step returns with the grid's gamma 0.9 plateau near 0.86 success on
@@ -140,27 +140,28 @@ GENERALIST_PPO: dict[str, Any] = {
     "lr_end": 3e-5,
 }
 
-_ROBOT_IDS = (
-    "RobotSimple-v0", "RobotComplex-v0", "RobotRandom-v0", "RobotMaze-v0", "RobotNav-v0",
-    "RobotJaxNav-v0",
-)  # fmt: skip
-_GRID_IDS = ("GridMaze-v0", "GridMaze-Random-v0")
-# algo -> env id -> preset
-PRESETS: dict[str, dict[str, dict[str, Any]]] = {
-    "dqn": {**dict.fromkeys(_GRID_IDS, {}), **dict.fromkeys(_ROBOT_IDS, ROBOT_DQN)},
+# algo -> env family (its env class's ``family``) -> the preset of ids without their own
+FAMILY_PRESETS: dict[str, dict[str, dict[str, Any]]] = {
+    "dqn": {"grid": {}, "robot": ROBOT_DQN},
+    "pqn": {"grid": PQN, "robot": ROBOT_PQN},
+    "ppo": {"grid": PPO, "robot": ROBOT_PPO},
+}
+# algo -> env id -> its own preset
+ID_PRESETS: dict[str, dict[str, dict[str, Any]]] = {
     "pqn": {
-        **dict.fromkeys(_GRID_IDS, PQN),
         "GridMaze-Random-v0": GRID_RANDOM_PQN,
-        **dict.fromkeys(_ROBOT_IDS, ROBOT_PQN),
         "RobotNav-v0": GENERALIST_PQN,
         "RobotJaxNav-v0": GENERALIST_PQN,  # the generalist's sensors, on JaxNav's levels
     },
-    "ppo": {
-        **dict.fromkeys(_GRID_IDS, PPO),
-        **dict.fromkeys(_ROBOT_IDS, ROBOT_PPO),
-        "RobotNav-v0": GENERALIST_PPO,
-        "RobotJaxNav-v0": GENERALIST_PPO,
-    },
+    "ppo": {"RobotNav-v0": GENERALIST_PPO, "RobotJaxNav-v0": GENERALIST_PPO},
+}
+# algo -> env id -> preset, for every registered id
+PRESETS: dict[str, dict[str, dict[str, Any]]] = {
+    algo: {
+        env_id: ID_PRESETS.get(algo, {}).get(env_id, by_family.get(env_family(env_id), {}))
+        for env_id in registered_envs()
+    }
+    for algo, by_family in FAMILY_PRESETS.items()
 }
 
 

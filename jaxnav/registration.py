@@ -71,6 +71,11 @@ def _entry(env_id: str) -> tuple[Callable[..., Environment], Callable[[], Any], 
     return _REGISTRY[env_id]
 
 
+def env_family(env_id: str) -> str:
+    """The family of ``env_id``'s env class ("grid", "robot"): presets are per family."""
+    return _entry(env_id)[0].family
+
+
 def registered_envs() -> list[str]:
     """The ids ``make`` accepts."""
     return list(_REGISTRY)

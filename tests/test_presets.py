@@ -7,14 +7,16 @@ import pytest
 
 from jaxnav.config import ALGOS, TrainConfig
 from jaxnav.presets import (
+    FAMILY_PRESETS,
     GENERALIST_PQN,
     GRID_RANDOM_PQN,
+    ID_PRESETS,
     PRESETS,
     ROBOT_DQN,
     default_algo,
     train_defaults,
 )
-from jaxnav.registration import registered_envs
+from jaxnav.registration import env_family, registered_envs
 from jaxnav.train.__main__ import config_from_args
 from jaxnav.train.__main__ import parser as train_parser
 
@@ -36,6 +38,18 @@ def test_presets_cover_every_algorithm_and_env_id():
     assert set(PRESETS) == set(ALGOS)
     for algo in ALGOS:
         assert set(PRESETS[algo]) == set(registered_envs()), algo
+
+
+def test_an_env_id_without_its_own_preset_trains_with_its_familys():
+    # a new id of a registered env class needs no edit here: its class names the family
+    families = {env_family(e) for e in registered_envs()}
+    assert families == {"grid", "robot"}
+    for algo in ALGOS:
+        for env_id in registered_envs():
+            own = ID_PRESETS.get(algo, {}).get(env_id)
+            want = own if own is not None else FAMILY_PRESETS[algo][env_family(env_id)]
+            assert PRESETS[algo][env_id] is want, (algo, env_id)
+    assert PRESETS["dqn"]["RobotMaze-v0"] is ROBOT_DQN
 
 
 @pytest.mark.parametrize("algo", ALGOS)

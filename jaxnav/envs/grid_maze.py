@@ -360,6 +360,8 @@ class GridMazeParams(EnvParams):
 class GridMaze(Environment[GridMazeState, GridMazeParams]):
     """Grid navigation to a goal among obstacles; see the module docstring."""
 
+    family: ClassVar[str] = "grid"  # which presets train it (``jaxnav.presets``)
+
     stochastic_step = False  # moves are deterministic
 
     def observation_layout(self, params: GridMazeParams) -> dict[str, Any]:

@@ -588,6 +588,8 @@ class RobotParams(EnvParams):
 class RobotNav(Environment[RobotState, RobotParams]):
     """Laser-based navigation of a differential-drive robot; see the module docstring."""
 
+    family: ClassVar[str] = "robot"  # which presets train it (``jaxnav.presets``)
+
     stochastic_step = False  # motion is deterministic; resets draw from the key
     # a reset casts all rays anew and episodes last tens of steps: 1/16 of a batch ending
     # per step is rare (about 1/50 end per step under random actions)
