@@ -40,15 +40,17 @@ from jaxnav.export import to_trainer
 from jaxnav.train import Trainer
 
 MAZE_FILE = "examples/mazes/corridors_1cell.txt"
-# (label, env overrides) trained by --train-cpu
-VARIANTS: list[tuple[str, dict[str, Any]]] = [
-    ("map-free", {}),
-    ("map-free, crash -50", {"collision_reward": -50.0}),
+# (label, env overrides, training overrides) trained by --train-cpu
+VARIANTS: list[tuple[str, dict[str, Any], dict[str, Any]]] = [
+    ("map-free", {}, {}),
+    ("map-free, crash -50", {"collision_reward": -50.0}, {}),
     (
         "map-free, step reward -0.01..-0.02, no clearance term",
         {"step_reward_start": -0.01, "step_reward_end": -0.02, "clearance_reward": 0.0},
+        {},
     ),
-    ("waypoint 1 m ahead", {"waypoint_distance": 1.0}),
+    ("map-free, GRU 64", {}, {"memory": 64}),
+    ("waypoint 1 m ahead", {"waypoint_distance": 1.0}, {}),
 ]
 
 
@@ -74,8 +76,11 @@ def by_gap(policy_path: Path, episodes: int) -> dict[str, Any]:
     return {"policy": policy_path.name, "episodes": episodes, "all": outcome(out), **rows}
 
 
-def train_cpu(label: str, extra: dict[str, Any], steps: int) -> dict[str, Any]:
-    """PQN on the one-cell corridor maze with ``extra`` env overrides, tested greedily."""
+def train_cpu(
+    label: str, extra: dict[str, Any], train: dict[str, Any], steps: int
+) -> dict[str, Any]:
+    """PQN on the one-cell corridor maze with ``extra`` env and ``train`` training overrides,
+    tested greedily."""
     maze_picking = ("maze", "num_layouts", "num_goal_cells")
     base = {k: v for k, v in GENERALIST.items() if k not in maze_picking}
     env_kwargs = {**base, **MAPFREE_SENSORS, "maze_file": MAZE_FILE, **extra}
@@ -83,7 +88,7 @@ def train_cpu(label: str, extra: dict[str, Any], steps: int) -> dict[str, Any]:
         "RobotMaze-v0", algo="pqn", env_kwargs=env_kwargs, num_envs=256, rollout_length=16,
         num_minibatches=8, num_epochs=2, hidden_sizes=(256, 256), compute_dtype="float32",
         fused_layer_norm=False, total_timesteps=steps, log_interval=steps // 4, gamma=0.99,
-        td_lambda=0.9, eps_decay_steps=steps // 4, lr=1e-3, eval_episodes=0,
+        td_lambda=0.9, eps_decay_steps=steps // 4, lr=1e-3, eval_episodes=0, **train,
     )  # fmt: skip
     trainer = Trainer(config)
     t0 = time.perf_counter()
@@ -94,7 +99,7 @@ def train_cpu(label: str, extra: dict[str, Any], steps: int) -> dict[str, Any]:
         env, env_params, trainer.greedy_policy(state.params), jax.random.key(1), 200,
         env_params.max_steps_in_episode,
     )  # fmt: skip
-    return {"variant": label, "env_overrides": extra, "env_steps": steps,
+    return {"variant": label, "env_overrides": extra, "train": train, "env_steps": steps,
             "train_s": round(train_s, 1), "episodes": 200, **outcome(out)}  # fmt: skip
 
 
@@ -113,7 +118,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.policy is not None:
         results.append(by_gap(args.policy, args.episodes))
     if args.train_cpu:
-        results += [train_cpu(label, extra, args.steps) for label, extra in VARIANTS]
+        results += [train_cpu(*variant, args.steps) for variant in VARIANTS]
     machine = machine_info()
     args.out.parent.mkdir(parents=True, exist_ok=True)
     with args.out.open("a") as f:

@@ -14,19 +14,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from jaxnav import run_dir
-from jaxnav.cli import (
-    HelpFormatter,
-    Parser,
-    UsageError,
-    add_env_args,
-    add_policy_source,
-    check_policy_source,
-    check_seed,
-    env_from_args,
-    fail,
-    write_failed,
-)
+from jaxnav import cli, run_dir
 from jaxnav.evaluate import (
     SEED_STATISTICS,
     evaluate_seeds,
@@ -40,18 +28,18 @@ from jaxnav.safe_io import WriteFault, check_output_file
 
 
 def parser() -> argparse.ArgumentParser:
-    p = Parser(
+    p = cli.Parser(
         prog="python -m jaxnav.evaluate",
         description="Evaluate a trained run (greedy) or the random agent on fresh episodes.",
-        formatter_class=HelpFormatter,
+        formatter_class=cli.HelpFormatter,
     )
-    add_policy_source(
+    cli.add_policy_source(
         p,
         "a policy shipped with jaxnav instead of a run (python -m jaxnav.pretrained "
         "lists them); --out is then optional",
     )
     p.add_argument("--env", help="evaluate on another env id (generalization); default: the run's")
-    add_env_args(p)
+    cli.add_env_args(p)
     p.add_argument("--episodes", type=int, default=1000, help="test episodes per seed")
     p.add_argument("--seed", type=int, default=0, help="seed of the test episodes")
     p.add_argument("--policy", choices=("trained", "random"), default="trained")
@@ -94,9 +82,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         args = parser().parse_args(argv)
         if not 1 <= args.episodes <= 10**7:
             raise ValueError(f"--episodes {args.episodes}: must be in [1, 10000000]")
-        check_seed(args.seed)
-        check_policy_source(args)
-        env, overrides = env_from_args(args, args.env)
+        cli.check_seed(args.seed)
+        cli.check_policy_source(args)
+        env, overrides = cli.env_from_args(args, args.env)
         if args.run is not None:
             config = run_dir.load_config(args.run)
         out = args.out or (
@@ -111,8 +99,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         else:
             on = run_dir.run_env(config, env, overrides)  # the run's sensors go with it
             config, trainer, params = run_dir.load_run_on(args.run, *on)
-    except (UsageError, ValueError, FileNotFoundError) as e:
-        return fail(prog, str(e))
+    except (cli.UsageError, ValueError, FileNotFoundError) as e:
+        return cli.fail(prog, str(e))
     enable_compilation_cache()
     rows = evaluate_seeds(trainer, params, args.episodes, args.seed, args.policy, per_maze=True)
     mazes = trainer.env.num_layouts(trainer.env_params)
@@ -136,7 +124,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         try:
             run_dir.write_json(out, result)
         except WriteFault as e:
-            return write_failed(prog, e)
+            return cli.write_failed(prog, e)
     print_eval_table(config.env, {args.policy: mean_of(rows)})
     if args.episodes % mazes:
         print(
