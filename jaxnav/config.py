@@ -75,9 +75,12 @@ def widths(v: Any) -> str | None:
 
 def policy_source(v: Any) -> str | None:
     """Empty, a shipped policy's name or an npz file's path (read when a run starts)."""
-    ok = isinstance(v, str) and (not v or v.endswith(".npz") or v in pretrained.names())
-    shipped = ", ".join(pretrained.names())
-    return None if ok else f"must be a shipped policy ({shipped}) or an npz file"
+    if isinstance(v, str) and (not v or v.endswith(".npz")):
+        return None  # the common case reads no manifest
+    shipped = pretrained.names()
+    if isinstance(v, str) and v in shipped:
+        return None
+    return f"must be a shipped policy ({', '.join(shipped)}) or an npz file"
 
 
 def _algo_help() -> str:
