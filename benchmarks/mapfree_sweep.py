@@ -49,6 +49,8 @@ MIXED = {
     "radius_range": (0.1, 0.24),
     "obs_radius": True,
 }
+# MIXED at JaxNav's goal radius, with robots up to its 0.25 m where a maze's cells allow it
+MIXED_GOAL = {**MIXED, "radius_range": (0.1, 0.25), "goal_radius": 0.3}
 # a step penalty a tenth of the generalist's and no clearance term: a long search for the goal
 # then costs less than a crash (-10), so a policy unsure of its way has no reason to crash
 GENTLE = {"step_reward_start": -0.01, "step_reward_end": -0.02, "clearance_reward": 0.0}
@@ -84,6 +86,23 @@ ROWS: list[tuple[str, str, dict[str, Any], dict[str, Any]]] = [
         "RobotNav-v0",
         {**ODOMETRY, "frames": 8, **GENTLE},
         {},
+    ),
+    # JaxNav's goal radius (0.3 m) in training: at the families' 0.5 m, policies stopped 0.3-0.45
+    # m from the goal and rocked there until the time limit on JaxNav's levels
+    ("row 5 at goal radius 0.3 m, radius 0.1-0.25 m", "RobotNav-v0", MIXED_GOAL, {}),
+    (
+        "row 2 on families + JaxNav levels at goal radius 0.3 m, radius 0.1-0.25 m",
+        "RobotNav-v0",
+        {**ODOMETRY, "frames": 8, **MIXED_GOAL},
+        {},
+    ),
+    # a recurrent preset with fewer sequential passes: 2 epochs of 8 minibatches (the GRU steps
+    # through every minibatch's sequences one time step at a time)
+    (
+        "row 1 + GRU 128, 2 epochs of 8 minibatches",
+        "RobotNav-v0",
+        ODOMETRY,
+        {"memory": 128, "num_epochs": 2, "num_minibatches": 8},
     ),
 ]
 
