@@ -29,7 +29,7 @@ import jax
 import numpy as np
 
 from benchmarks.common import machine_info
-from benchmarks.mapfree_sweep import outcome
+from benchmarks.mapfree_sweep import GENTLE, outcome
 from jaxnav.config import TrainConfig
 from jaxnav.deploy.policy import Policy
 from jaxnav.envs.maze_algorithms import narrowest_gap
@@ -46,11 +46,17 @@ VARIANTS: list[tuple[str, dict[str, Any], dict[str, Any]]] = [
     ("map-free, crash -50", {"collision_reward": -50.0}, {}),
     (
         "map-free, step reward -0.01..-0.02, no clearance term",
-        {"step_reward_start": -0.01, "step_reward_end": -0.02, "clearance_reward": 0.0},
+        GENTLE,
         {},
     ),
     ("map-free, GRU 64", {}, {"memory": 64}),
     ("waypoint 1 m ahead", {"waypoint_distance": 1.0}, {}),
+    ("map-free, odometry trail of 0.5 m cells", {"trail_cell": 0.5}, {}),
+    (
+        "map-free, odometry trail, step reward -0.01..-0.02, no clearance term",
+        {"trail_cell": 0.5, **GENTLE},
+        {},
+    ),
 ]
 
 
@@ -109,6 +115,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--episodes", type=int, default=400)
     p.add_argument("--train-cpu", action="store_true", help="train the variants on the maze")
     p.add_argument("--steps", type=int, default=8_388_608)
+    p.add_argument("--variants", help="comma-separated indices of the variants (default: all)")
     p.add_argument("--out", type=Path, default=Path("benchmarks/results/mapfree_gaps.jsonl"))
     args = p.parse_args(argv)
     if args.policy is None and not args.train_cpu:
@@ -118,7 +125,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.policy is not None:
         results.append(by_gap(args.policy, args.episodes))
     if args.train_cpu:
-        results += [train_cpu(*variant, args.steps) for variant in VARIANTS]
+        picked = range(len(VARIANTS)) if args.variants is None else map(int, args.variants.split(","))
+        results += [train_cpu(*VARIANTS[i], args.steps) for i in picked]
     machine = machine_info()
     args.out.parent.mkdir(parents=True, exist_ok=True)
     with args.out.open("a") as f:

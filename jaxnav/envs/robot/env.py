@@ -138,6 +138,7 @@ MAX_BANK_CELLS = 4_000_000  # random mazes are generated in Python: bounds a ban
 MAX_STEP_CELLS = 100  # a control step may cross at most this many cells (bounds the sub-steps)
 MAX_WAYPOINT_DISTANCE = 10.0  # metres
 FIT_MARGIN = 0.05  # metres a drawn radius leaves each side of a maze's narrowest gap
+TRAIL_CELLS = 64  # the trail's cells per side, centred on the start (outside: not kept, reads 0)
 MAX_WAYPOINT_CELLS = 64  # the lookahead is unrolled, one step per cell
 NUM_LASERS = 7  # the paper's; RobotConfig.num_lasers' default
 # the geodesic table's bytes (int16[B, goals, rows, cols]); beyond this a bank is refused, with
@@ -203,6 +204,10 @@ class RobotConfig:
     obs_last_action: bool = False
     # the episode's robot radius in metres (clipped at 1): one policy for several robot sizes
     obs_radius: bool = False
+    # an odometry trail: how many steps the robot's own path has spent in square cells of this
+    # side (metres, in the frame of its start pose) at its position and at 1 and 2 cells away in
+    # 8 directions around its heading; memory of where it has searched. 0: none
+    trail_cell: float = 0.0
     # a global planner's hint: (sin, cos) of the direction to the point about
     # ``waypoint_distance`` metres ahead on a shortest path through the maze's free cells (that
     # many metres in whole cells, at least one), and its distance / laser_range; in metres, not
@@ -299,6 +304,8 @@ class RobotConfig:
                 f"goal_range={self.goal_range!r}: must be a positive number of metres "
                 "(0: laser_range)"
             )
+        if not (self.trail_cell == 0 or _positive(self.trail_cell)):
+            raise ValueError(f"trail_cell={self.trail_cell!r}: must be a number of metres (0: no trail)")
         if type(self.waypoint_moves) is not int or self.waypoint_moves not in (4, 8):
             raise ValueError(f"waypoint_moves={self.waypoint_moves!r}: must be 4 or 8")
         w = self.waypoint_distance
@@ -568,6 +575,9 @@ class RobotState(EnvState):
     radius: jax.Array | None = None  # float32
     speed: jax.Array | None = None  # float32
     turn_speed: jax.Array | None = None  # float32
+    # with ``trail_cell``: the start pose (the odometry frame) and steps per trail cell
+    origin: jax.Array | None = None  # float32[3]
+    trail: jax.Array | None = None  # uint8[TRAIL_CELLS, TRAIL_CELLS]
 
 
 @struct.dataclass(kw_only=True)
@@ -663,7 +673,7 @@ class RobotNav(Environment[RobotState, RobotParams]):
         return (
             c.num_lasers + absolute + c.obs_proximity + 2 * c.obs_heading + 2 * c.obs_goal_bearing
             + 3 * (c.waypoint_distance > 0) + len(ACTION_NAMES) * c.obs_last_action
-            + c.obs_radius
+            + c.obs_radius + (1 + 2 * len(layout.TRAIL_ANGLES)) * (c.trail_cell > 0)
         )
 
     def observation_space(self, params: RobotParams | None = None) -> spaces.Box:
@@ -715,7 +725,10 @@ class RobotNav(Environment[RobotState, RobotParams]):
         # keys of their own (folded in), apart from the start, goal and heading draws
         robot = self._episode_robot(jax.random.fold_in(key, 2), params, layout)
         radius = robot.get("radius", self.config.radius)
-        frame = self._frame(pose, goal, layout, params, None, radius)
+        if self.config.trail_cell:
+            robot["origin"] = pose
+            robot["trail"] = self._visit(jnp.zeros((TRAIL_CELLS, TRAIL_CELLS), jnp.uint8), pose, pose)
+        frame = self._frame(pose, goal, layout, params, None, radius, robot.get("trail"), pose)
         frame = self._sense(frame, jax.random.fold_in(key, 1))
         frames = jnp.broadcast_to(frame, (self.config.frames, frame.shape[0]))
         state = RobotState(
@@ -760,7 +773,10 @@ class RobotNav(Environment[RobotState, RobotParams]):
         d_after = self.goal_distance(pose, state.goal, state.layout, params)
         known = (d_before >= 0) & (d_after >= 0)
         r_progress = jnp.where(known, params.progress_reward * (d_before - d_after), 0.0)
-        frame = self._frame(pose, state.goal, state.layout, params, action, radius)
+        trail = None if state.trail is None else self._visit(state.trail, state.origin, pose)
+        frame = self._frame(
+            pose, state.goal, state.layout, params, action, radius, trail, state.origin
+        )
         gap = frame[: c.num_lasers].min() * c.laser_range - radius  # free space around it
         r_clearance = params.clearance_reward * jnp.clip(1.0 - gap / params.clearance, 0.0, 1.0)
         frame = self._sense(frame, k_sense)  # the lasers as seen (the clearance read the truth)
@@ -769,7 +785,7 @@ class RobotNav(Environment[RobotState, RobotParams]):
         # (docs/results-history.md)
         flat = jnp.concatenate([state.frames.reshape(-1)[frame.shape[0] :], frame])
         frames = flat.reshape(state.frames.shape)
-        state = state.replace(pose=pose, frames=frames, time=state.time + 1)
+        state = state.replace(pose=pose, frames=frames, time=state.time + 1, trail=trail)
         info = {
             "goal_reached": at_goal,
             "collision": collided,
@@ -1048,8 +1064,11 @@ class RobotNav(Environment[RobotState, RobotParams]):
         params: RobotParams,
         action: jax.Array | None,
         radius: jax.Array | float,
+        trail: jax.Array | None = None,
+        origin: jax.Array | None = None,
     ) -> jax.Array:
-        """One frame of the observation at ``pose``; ``action`` led there (None: a reset)."""
+        """One frame of the observation at ``pose``; ``action`` led there (None: a reset);
+        ``trail`` and ``origin`` the odometry trail with the visit at ``pose`` counted."""
         c = self.config
         parts = [self.lasers(pose, layout, params) / c.laser_range]
         if c.obs_absolute:
@@ -1073,9 +1092,40 @@ class RobotNav(Environment[RobotState, RobotParams]):
             parts.append(jnp.zeros(n) if action is None else jax.nn.one_hot(action, n))
         if c.obs_radius:
             parts.append(jnp.minimum(jnp.asarray(radius, jnp.float32), 1.0)[None])
+        if trail is not None:
+            parts.append(self._trail_reading(trail, origin, pose))
         # Materialize the frame: otherwise XLA fuses the ray casts into the stacking of
         # frames and recasts them for every stacked element (half of a GPU step's time)
         return jax.lax.optimization_barrier(jnp.concatenate(parts))
+
+    def _trail_cell(self, origin: jax.Array, xy: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """``(row, col)`` of the trail cells holding points ``xy`` ([..., 2], the maze's frame)
+        in the odometry frame of the start pose ``origin``, and whether they are on the
+        trail's grid (the start at the centre of cell (TRAIL_CELLS / 2, TRAIL_CELLS / 2))."""
+        d = xy - origin[:2]
+        cos, sin = jnp.cos(origin[2]), jnp.sin(origin[2])
+        local = jnp.stack([cos * d[..., 0] + sin * d[..., 1], cos * d[..., 1] - sin * d[..., 0]])
+        cell = jnp.floor(local / self.config.trail_cell + 0.5).astype(jnp.int32) + TRAIL_CELLS // 2
+        inside = ((cell >= 0) & (cell < TRAIL_CELLS)).all(axis=0)
+        cell = jnp.clip(cell, 0, TRAIL_CELLS - 1)
+        return cell[0], cell[1], inside
+
+    def _visit(self, trail: jax.Array, origin: jax.Array, pose: jax.Array) -> jax.Array:
+        """``trail`` with one more step at ``pose`` (saturating at 255; off the grid: kept)."""
+        x, y, inside = self._trail_cell(origin, pose[:2])
+        count = trail[x, y]
+        return trail.at[x, y].set(jnp.where(inside & (count < 255), count + 1, count))
+
+    def _trail_reading(self, trail: jax.Array, origin: jax.Array, pose: jax.Array) -> jax.Array:
+        """Steps spent at the robot's cell and 1 and 2 trail cells away in each of
+        ``layout.TRAIL_ANGLES`` around the heading, each / layout.TRAIL_SATURATION clipped at 1."""
+        step = self.config.trail_cell * jnp.arange(1, 3, dtype=jnp.float32)
+        angles = pose[2] + jnp.asarray(layout.TRAIL_ANGLES, jnp.float32)
+        ring = jnp.stack([jnp.cos(angles), jnp.sin(angles)], -1)[:, None, :] * step[None, :, None]
+        points = jnp.concatenate([pose[None, :2], (pose[:2] + ring).reshape(-1, 2)])
+        x, y, inside = self._trail_cell(origin, points)
+        counts = jnp.where(inside, trail[x, y], 0).astype(jnp.float32)
+        return jnp.minimum(counts / layout.TRAIL_SATURATION, 1.0)
 
     def get_obs(self, state: RobotState, params: RobotParams) -> jax.Array:
         return state.frames.reshape(-1)

@@ -8,6 +8,9 @@ from typing import Any
 
 import numpy as np
 
+TRAIL_ANGLES = tuple(np.linspace(0.0, 2 * np.pi, 8, endpoint=False))  # from the heading
+TRAIL_SATURATION = 16  # steps in a trail cell that read as 1
+
 
 def entry(name: str, scale: float = 1.0, clip: Sequence[float] | None = None, **more: Any):
     """One observation value: ``name``, ``scale`` (value = raw quantity x scale), ``clip``."""
@@ -48,6 +51,14 @@ def frame_layout(env: Any, action_names: Sequence[str]) -> list[dict[str, Any]]:
         entries += [entry(f"last_action_{name}") for name in action_names]
     if c.obs_radius:
         entries.append(entry("robot_radius", 1.0, (0.0, 1.0)))
+    if c.trail_cell:
+        saturation = 1.0 / TRAIL_SATURATION
+        entries.append(entry("trail", saturation, (0.0, 1.0), cells=0, angle_rad=0.0))
+        entries += [
+            entry("trail", saturation, (0.0, 1.0), cells=k, angle_rad=float(a))
+            for a in TRAIL_ANGLES
+            for k in (1, 2)
+        ]
     return entries
 
 
@@ -74,6 +85,9 @@ def quantities(action_names: Sequence[str]) -> dict[str, str]:
             for name in action_names
         },
         "robot_radius": "the robot's radius in metres",
+        "trail": "steps the robot's path has spent in the odometry trail's square cell (side "
+        "trail_cell_m, in the frame of the episode's start pose) holding the point `cells` "
+        "cells from the robot at `angle_rad` from its heading",
     }
 
 
