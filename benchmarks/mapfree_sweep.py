@@ -104,6 +104,13 @@ ROWS: list[tuple[str, str, dict[str, Any], dict[str, Any]]] = [
         ODOMETRY,
         {"memory": 128, "num_epochs": 2, "num_minibatches": 8},
     ),
+    # memory of where it has searched, from odometry: corridor mazes fail by timing out
+    (
+        "row 12 + odometry trail of 0.5 m cells",
+        "RobotNav-v0",
+        {**ODOMETRY, "frames": 8, **MIXED_GOAL, "trail_cell": 0.5},
+        {},
+    ),
 ]
 
 
