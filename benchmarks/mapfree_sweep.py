@@ -55,7 +55,7 @@ MIXED_GOAL = {**MIXED, "radius_range": (0.1, 0.25), "goal_radius": 0.3}
 # then costs less than a crash (-10), so a policy unsure of its way has no reason to crash
 GENTLE = {"step_reward_start": -0.01, "step_reward_end": -0.02, "clearance_reward": 0.0}
 # radii the held-out mazes are tested at when a row draws the robot's size
-HELD_OUT_RADII = (0.1, 0.15, 0.2)
+HELD_OUT_RADII = (0.1, 0.15, 0.2, 0.25)
 
 # (label, env id, env overrides, training overrides)
 ROWS: list[tuple[str, str, dict[str, Any], dict[str, Any]]] = [

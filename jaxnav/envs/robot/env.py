@@ -137,7 +137,9 @@ LASER_SCALE = 10.0 * math.sqrt(2.0)  # Table I: sensors normalized by their maxi
 MAX_BANK_CELLS = 4_000_000  # random mazes are generated in Python: bounds a bank's build time
 MAX_STEP_CELLS = 100  # a control step may cross at most this many cells (bounds the sub-steps)
 MAX_WAYPOINT_DISTANCE = 10.0  # metres
-FIT_MARGIN = 0.05  # metres a drawn radius leaves each side of a maze's narrowest gap
+# metres a drawn radius leaves each side of a maze's narrowest gap: with turns of 0.2 rad a
+# step, a heading is off a corridor's axis by up to 0.1 rad and drifts 0.1 m in 7 steps
+FIT_MARGIN = 0.1
 TRAIL_CELLS = 64  # the trail's cells per side, centred on the start (outside: not kept, reads 0)
 MAX_WAYPOINT_CELLS = 64  # the lookahead is unrolled, one step per cell
 NUM_LASERS = 7  # the paper's; RobotConfig.num_lasers' default
