@@ -16,14 +16,17 @@ from conftest import TINY_TRAIN  # pytest puts tests/ on sys.path
 from flax import struct
 
 from jaxnav.algos import ALGOS
-from jaxnav.algos.base import Algorithm
+from jaxnav.algos.base import Algorithm, ProgramLayout
 from jaxnav.checkpoints import Checkpoints
 from jaxnav.sharding import is_key
-from jaxnav.train import METRIC_NAMES, Trainer
+from jaxnav.train import METRIC_NAMES, Trainer, backend
 
 PACKAGE = Path(__file__).resolve().parents[1] / "jaxnav"
 # the shared modules that must read an algorithm only through the registry
-SHARED = ("train/__init__.py", "config.py", "sharding.py", "runner.py", "checkpoints.py")
+SHARED = (
+    "train/__init__.py", "train/backend.py", "config.py", "sharding.py", "runner.py",
+    "checkpoints.py",
+)  # fmt: skip
 
 
 def algorithm_branches(path: Path) -> list[str]:
@@ -58,6 +61,68 @@ def test_the_shared_modules_name_no_algorithm(tmp_path):
     branch = tmp_path / "branch.py"
     branch.write_text('def f(c):\n    return 1 if c.algo in ("a", "b") else 2\n')
     assert algorithm_branches(branch) == ["branch.py:2 compares algo with a name"]
+
+
+def backend_queries(path: Path) -> list[str]:
+    """Where the module at ``path`` asks which backend it runs on: an import of a module
+    named ``backend`` (``jaxnav.train.backend``) or of the training layer, or a use of
+    ``jax.default_backend``, ``jax.devices`` or ``jax.local_devices``."""
+    found = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import | ast.ImportFrom):
+            modules = [a.name for a in node.names] if isinstance(node, ast.Import) else []
+            if isinstance(node, ast.ImportFrom):
+                modules = [f"{node.module or ''}.{a.name}" for a in node.names]
+            for m in modules:
+                if "backend" in m.split(".") or m.startswith("jaxnav.train"):
+                    found.append(f"{path.name}:{node.lineno} imports {m}")
+        if (
+            isinstance(node, ast.Attribute)
+            and isinstance(node.value, ast.Name)
+            and node.value.id == "jax"
+            and node.attr in ("default_backend", "devices", "local_devices")
+        ):
+            found.append(f"{path.name}:{node.lineno} jax.{node.attr}")
+    return found
+
+
+def test_the_algorithms_query_no_backend(tmp_path):
+    """The algorithms read how their program is laid out for the backend from the loop
+    (``Loop.layout``); the backend-specific choices are the training layer's
+    (``jaxnav.train.backend``)."""
+    modules = sorted((PACKAGE / "algos").glob("*.py"))
+    assert len(modules) >= 5
+    assert {p.name: backend_queries(p) for p in modules} == {p.name: [] for p in modules}
+    # the check sees a query where there is one
+    assert backend_queries(PACKAGE / "train" / "backend.py")
+    query = tmp_path / "query.py"
+    query.write_text("import jax\nfrom jaxnav.train import backend\nx = jax.default_backend()\n")
+    assert backend_queries(query) == [
+        "query.py:2 imports jaxnav.train.backend",
+        "query.py:3 jax.default_backend",
+    ]
+
+
+def test_the_layout_on_a_cpu_is_the_cpu_choice():
+    """On a CPU (where the tests run) every algorithm's program has loops of one gradient
+    step a trip, rolled lambda-returns, a cond for the target update and no optimizer
+    barrier; on a GPU each algorithm's own unroll and the other choices."""
+    cpu = ProgramLayout(
+        updates_unroll=1, returns_unrolled=False, target_update_select=False,
+        optimizer_barrier=False,
+    )  # fmt: skip
+    assert jax.default_backend() == "cpu"
+    for name, algorithm in sorted(ALGOS.items()):
+        assert Trainer(dataclasses.replace(TINY_TRAIN, algo=name)).layout == cpu, name
+        assert backend.layout(algorithm.gpu_updates_unroll) == cpu, name
+        assert backend.layout(algorithm.gpu_updates_unroll, "cpu") == cpu, name
+        assert backend.layout(algorithm.gpu_updates_unroll, "gpu") == ProgramLayout(
+            updates_unroll=algorithm.gpu_updates_unroll, returns_unrolled=True,
+            target_update_select=True, optimizer_barrier=True,
+        ), name  # fmt: skip
+    assert {n: a.gpu_updates_unroll for n, a in ALGOS.items()} == {"dqn": 2, "pqn": 16, "ppo": 16}
+    assert [cpu.unroll(n) for n in (1, 5)] == [1, 1]
+    assert [ProgramLayout(updates_unroll=16).unroll(n) for n in (3, 16, 64)] == [3, 16, 16]
 
 
 @pytest.mark.parametrize("name", sorted(ALGOS))

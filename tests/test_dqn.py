@@ -16,8 +16,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from jaxnav.agents import dqn
-from jaxnav.algos import backend
-from jaxnav.train import Trainer
+from jaxnav.algos.base import ProgramLayout
+from jaxnav.train import Trainer, backend
 
 NUM_ACTIONS = 4
 
@@ -449,7 +449,7 @@ def test_target_updates_at_the_gradient_step_whose_env_steps_cross_the_period(
     parameters exactly when 4i + 4 is a multiple of 3, and otherwise those of an earlier step
     (neither the iteration's final parameters nor the previous target). Both forms of the
     update: the CPU's cond and the GPU's select."""
-    monkeypatch.setattr(backend, "target_update_select", lambda: select)
+    monkeypatch.setattr(backend, "layout", lambda *_: ProgramLayout(target_update_select=select))
     c = dataclasses.replace(
         tiny_config, batch_size=2, replay_ratio=2.0, target_update_period=3,
         total_timesteps=10 * tiny_config.num_envs,
@@ -548,7 +548,7 @@ def test_vmap_over_seeds_and_hparams(tiny_trainer, train_one, train_many, seed0_
 
 @pytest.mark.parametrize("updates", [3, 4])
 def test_updates_unrolled_two_a_trip_train_exactly_as_rolled(monkeypatch, updates):
-    """On a GPU the DQN's gradient steps run two a loop trip (``backend.updates_unroll``),
+    """On a GPU the DQN's gradient steps run two a loop trip (``ProgramLayout.updates_unroll``),
     also where their count is odd; on a CPU one. The same run either way: the same samples,
     target updates and episodes, and parameters equal up to float rounding (XLA may fuse the
     unrolled body's arithmetic otherwise)."""
@@ -558,7 +558,8 @@ def test_updates_unrolled_two_a_trip_train_exactly_as_rolled(monkeypatch, update
     assert config.updates_per_iteration == updates
     runs = []
     for unroll in (1, 2):
-        monkeypatch.setattr(backend, "updates_unroll", lambda steps, _, k=unroll: min(steps, k))
+        layout = ProgramLayout(updates_unroll=unroll)
+        monkeypatch.setattr(backend, "layout", lambda *_, layout=layout: layout)
         runs.append(jax.jit(Trainer(config).train)(jax.random.key(5)))
     rolled, unrolled = (jax.tree.leaves(run) for run in runs)
     for a, b in zip(rolled, unrolled, strict=True):

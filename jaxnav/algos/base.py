@@ -9,6 +9,7 @@ algorithm is its module, its presets (``jaxnav.presets``) and its tests.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from typing import Any, Protocol
 
@@ -59,6 +60,26 @@ MAX_UPDATES = 65536
 LossFn = Callable[[Any, Any], tuple[jax.Array, dict]]  # (params, batch) -> (loss, rows)
 
 
+@dataclasses.dataclass(frozen=True)
+class ProgramLayout:
+    """How the training program is laid out for the backend it runs on
+    (``Loop.layout``, resolved by ``jaxnav.train.backend``, which says why each choice is
+    made). Each changes how XLA schedules the same operations, never the values computed."""
+
+    # gradient steps one trip of a gradient-step loop runs, at most (``unroll``)
+    updates_unroll: int = 1
+    # PQN's lambda-returns as straight-line code (``agents.pqn.lambda_returns``'s ``unrolled``)
+    returns_unrolled: bool = False
+    # the DQN's target update a select over the parameters, else a cond
+    target_update_select: bool = False
+    # the flat gradient written out once before the optimizer reads it
+    optimizer_barrier: bool = False
+
+    def unroll(self, steps: int) -> int:
+        """The ``unroll`` of a scan over ``steps`` gradient steps."""
+        return min(steps, self.updates_unroll)
+
+
 class Loop(Protocol):
     """What an algorithm reads of the training loop (``jaxnav.train.Trainer``)."""
 
@@ -68,6 +89,7 @@ class Loop(Protocol):
     network: Any  # ``agents.dqn.QNetwork``: Q-values, or a policy's logits
     learner_network: Any  # the same, as the training program runs it (over devices)
     obs_size: int
+    layout: ProgramLayout  # how the program is laid out for the backend it runs on
 
     def env_step(
         self, ts: TrainState, keys: tuple[jax.Array, jax.Array, jax.Array], eps: jax.Array,
@@ -102,6 +124,9 @@ class Algorithm:
     recurrent = False
     # what it is, as the help of ``--algo`` says
     summary = ""
+    # gradient steps one trip of its gradient-step loops runs on a GPU, at most
+    # (``ProgramLayout.updates_unroll``, which the loop resolves from it)
+    gpu_updates_unroll = 1
 
     def __init__(self, loop: Loop):
         self.loop = loop

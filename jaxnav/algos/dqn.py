@@ -18,7 +18,6 @@ from flax import struct
 from jax.sharding import PartitionSpec as P
 
 from jaxnav.agents import dqn
-from jaxnav.algos import backend
 from jaxnav.algos.base import MAX_UPDATES, Algorithm, LossFn, TrainState, Transitions
 from jaxnav.sharding import ENVS, SEEDS
 
@@ -168,7 +167,7 @@ class DQN(Algorithm):
             batch, start, end = xs
             ts, rows = loop.gradient_step(ts, batch, self.minibatch_loss(ts))
             crossed = (env_steps + end) // period > (env_steps + start) // period
-            if backend.target_update_select():
+            if loop.layout.target_update_select:
                 target = jax.tree.map(
                     partial(jnp.where, crossed), updated_target(ts), ts.algo_state.target_params
                 )
@@ -191,8 +190,8 @@ class DQN(Algorithm):
                 lambda k: dqn.buffer_sample(buffer, k, c.batch_size, c.n_step, hp.gamma)
             )(jax.random.split(key, u))
             total = dqn.diagnostics_init(c.batch_size)
-            xs, unroll = (batches, starts, ends), backend.updates_unroll(u, self.gpu_updates_unroll)
-            (ts, total), _ = jax.lax.scan(update, (ts, total), xs, unroll=unroll)
+            xs = (batches, starts, ends)
+            (ts, total), _ = jax.lax.scan(update, (ts, total), xs, unroll=loop.layout.unroll(u))
             aux = dqn.diagnostics_means(total, u)
             return ts, aux | {"updated": jnp.ones((), jnp.int32)}
 

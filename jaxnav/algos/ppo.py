@@ -25,7 +25,6 @@ import jax.numpy as jnp
 from flax import struct
 
 from jaxnav.agents import dqn, pqn
-from jaxnav.algos import backend
 from jaxnav.algos.base import LossFn, RolloutAlgorithm, TrainState, Transitions
 
 # added to the advantages' standard deviation before dividing by it (PureJaxRL's)
@@ -239,7 +238,7 @@ class PPO(RolloutAlgorithm):
 
         def epoch(carry, k):
             order = pqn.shuffled_rows(k, n).reshape(c.num_minibatches, -1)
-            unroll = backend.updates_unroll(c.num_minibatches, self.gpu_updates_unroll)
+            unroll = loop.layout.unroll(c.num_minibatches)
             return jax.lax.scan(minibatch, carry, order, unroll=unroll)[0], None
 
         zero = jnp.zeros(())

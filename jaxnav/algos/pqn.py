@@ -16,7 +16,6 @@ import jax
 import jax.numpy as jnp
 
 from jaxnav.agents import dqn, pqn
-from jaxnav.algos import backend
 from jaxnav.algos.base import LossFn, RolloutAlgorithm, TrainState, Transitions
 
 
@@ -93,7 +92,7 @@ class PQN(RolloutAlgorithm):
             next_value,
             hp.gamma,
             hp.td_lambda,
-            unrolled=backend.returns_unrolled(),
+            unrolled=loop.layout.returns_unrolled,
         )
         n = c.steps_per_iteration
         targets = jax.lax.stop_gradient(targets)
@@ -113,7 +112,7 @@ class PQN(RolloutAlgorithm):
         def epoch(carry, k):
             # each step gathers its own rows: no shuffled copy of the whole rollout an epoch
             order = pqn.shuffled_rows(k, n).reshape(c.num_minibatches, -1)
-            unroll = backend.updates_unroll(c.num_minibatches, self.gpu_updates_unroll)
+            unroll = loop.layout.unroll(c.num_minibatches)
             return jax.lax.scan(minibatch, carry, order, unroll=unroll)[0], None
 
         carry = (ts, dqn.diagnostics_init(self.minibatch_size(c)))

@@ -28,12 +28,12 @@ from jax.sharding import PartitionSpec as P
 
 from jaxnav import pretrained, sharding
 from jaxnav.agents import dqn
-from jaxnav.algos import backend
 from jaxnav.algos.base import LossFn, TrainState, Transitions
 from jaxnav.config import HPARAMS, TrainConfig
 from jaxnav.deploy.policy import Policy
 from jaxnav.registration import make
 from jaxnav.sharding import ENVS, SEEDS
+from jaxnav.train import backend
 
 METRIC_NAMES = (
     "env_steps",
@@ -130,6 +130,8 @@ class Trainer:
             else self.network
         )
         self.obs_size = self.env.observation_space(self.env_params).shape[0]
+        # how the program is laid out for this backend, resolved once (``backend``)
+        self.layout = backend.layout(config.algorithm.gpu_updates_unroll)
         self.algorithm = config.algorithm(self)
         self._check_memory()
 
@@ -263,7 +265,7 @@ class Trainer:
         # one flat vector instead of a leaf per layer: far fewer small kernels per update, which
         # bound PQN's many minibatch steps on a GPU (docs/results-history.md)
         chain = [optax.clip_by_global_norm(hp.max_grad_norm), opt]
-        if backend.optimizer_barrier():
+        if self.layout.optimizer_barrier:
             chain.insert(0, optax.stateless(lambda g, _: jax.lax.optimization_barrier(g)))
         return optax.flatten(optax.chain(*chain))
 
