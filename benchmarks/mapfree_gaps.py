@@ -125,7 +125,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.policy is not None:
         results.append(by_gap(args.policy, args.episodes))
     if args.train_cpu:
-        picked = range(len(VARIANTS)) if args.variants is None else map(int, args.variants.split(","))
+        picked = (
+            range(len(VARIANTS)) if args.variants is None else map(int, args.variants.split(","))
+        )
         results += [train_cpu(*VARIANTS[i], args.steps) for i in picked]
     machine = machine_info()
     args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -23,7 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from jaxnav import spaces
+from jaxnav import backend, spaces
 
 
 @struct.dataclass
@@ -49,10 +49,6 @@ class EnvParams:
         taken = {n: getattr(config, n) for n in names if n != "max_steps_in_episode"}
         return cls(max_steps_in_episode=config.max_steps, **taken, **values)
 
-
-# On a GPU, ``step_batch``'s compaction (index gathers and scatters) costs more than the resets
-# it saves in batches below this size (measured against vmap(step): docs/results-history.md)
-ACCELERATOR_MIN_BATCH = 2**17
 
 StateT = TypeVar("StateT", bound=EnvState)
 ParamsT = TypeVar("ParamsT", bound=EnvParams)
@@ -184,9 +180,7 @@ class Environment(Generic[StateT, ParamsT]):
         stands: for the state of a fresh reset, that very episode."""
         raise NotImplementedError
 
-    def check_reset_to(
-        self, params: ParamsT, start: Any, goal: Any, layout: Any = 0
-    ) -> None:
+    def check_reset_to(self, params: ParamsT, start: Any, goal: Any, layout: Any = 0) -> None:
         """``ValueError`` naming the first start or goal of ``reset_to``'s arguments (one
         episode's or a batch's, concrete) that is off the map or in a blocked cell. ``reset_to``
         checks concrete arguments itself; under ``jit``/``vmap`` it cannot (it must stay a
@@ -261,8 +255,9 @@ class Environment(Generic[StateT, ParamsT]):
         """``jax.vmap(self.step)`` over the leading axis of ``keys``, ``state`` and ``action``
         (``params`` shared), with the same results bit for bit, but fresh episodes built only
         for envs whose episode ended: at most ``batch_reset_fraction`` of the batch per step,
-        every env (and a select) on a step where more end. On an accelerator, batches smaller
-        than ``ACCELERATOR_MIN_BATCH`` take ``vmap(step)``, which is faster there.
+        every env (and a select) on a step where more end. Batches that
+        ``backend.step_batch_as_vmap`` names (small ones on an accelerator) take
+        ``vmap(step)``, which is faster there.
 
         For the top level: under another ``vmap`` (over seeds, say) the choice between the
         two becomes a select, both run, and this is no faster than ``vmap(step)``.
@@ -270,7 +265,7 @@ class Environment(Generic[StateT, ParamsT]):
         params = self.default_params if params is None else params
         num = keys.shape[0]
         budget = int(num * self.batch_reset_fraction)
-        if budget >= num or (jax.default_backend() != "cpu" and num < ACCELERATOR_MIN_BATCH):
+        if budget >= num or backend.step_batch_as_vmap(num):
             return jax.vmap(self.step, in_axes=(0, 0, 0, None))(keys, state, action, params)
         budget = max(budget, 1)
         key_reset, obs_step, state_step, reward, terminated, truncated, info = jax.vmap(

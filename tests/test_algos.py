@@ -19,12 +19,12 @@ from jaxnav.algos import ALGOS
 from jaxnav.algos.base import Algorithm, ProgramLayout
 from jaxnav.checkpoints import Checkpoints
 from jaxnav.sharding import is_key
-from jaxnav.train import METRIC_NAMES, Trainer, backend
+from jaxnav.train import METRIC_NAMES, Trainer, program_layout
 
 PACKAGE = Path(__file__).resolve().parents[1] / "jaxnav"
 # the shared modules that must read an algorithm only through the registry
 SHARED = (
-    "train/__init__.py", "train/backend.py", "config.py", "sharding.py", "runner.py",
+    "train/__init__.py", "backend.py", "config.py", "sharding.py", "runner.py",
     "checkpoints.py",
 )  # fmt: skip
 
@@ -65,7 +65,7 @@ def test_the_shared_modules_name_no_algorithm(tmp_path):
 
 def backend_queries(path: Path) -> list[str]:
     """Where the module at ``path`` asks which backend it runs on: an import of a module
-    named ``backend`` (``jaxnav.train.backend``) or of the training layer, or a use of
+    named ``backend`` (``jaxnav.backend``) or of the training layer, or a use of
     ``jax.default_backend``, ``jax.devices`` or ``jax.local_devices``."""
     found = []
     for node in ast.walk(ast.parse(path.read_text())):
@@ -88,18 +88,22 @@ def backend_queries(path: Path) -> list[str]:
 
 def test_the_algorithms_query_no_backend(tmp_path):
     """The algorithms read how their program is laid out for the backend from the loop
-    (``Loop.layout``); the backend-specific choices are the training layer's
-    (``jaxnav.train.backend``)."""
+    (``Loop.layout``); the backend-specific choices are ``jaxnav.backend``'s, which the
+    training layer resolves for them (``jaxnav.train.program_layout``)."""
     modules = sorted((PACKAGE / "algos").glob("*.py"))
     assert len(modules) >= 5
     assert {p.name: backend_queries(p) for p in modules} == {p.name: [] for p in modules}
     # the check sees a query where there is one
-    assert backend_queries(PACKAGE / "train" / "backend.py")
+    assert backend_queries(PACKAGE / "backend.py")
     query = tmp_path / "query.py"
-    query.write_text("import jax\nfrom jaxnav.train import backend\nx = jax.default_backend()\n")
+    query.write_text(
+        "import jax\nfrom jaxnav import backend\nfrom jaxnav.train import program_layout\n"
+        "x = jax.default_backend()\n"
+    )
     assert backend_queries(query) == [
-        "query.py:2 imports jaxnav.train.backend",
-        "query.py:3 jax.default_backend",
+        "query.py:2 imports jaxnav.backend",
+        "query.py:3 imports jaxnav.train.program_layout",
+        "query.py:4 jax.default_backend",
     ]
 
 
@@ -114,9 +118,9 @@ def test_the_layout_on_a_cpu_is_the_cpu_choice():
     assert jax.default_backend() == "cpu"
     for name, algorithm in sorted(ALGOS.items()):
         assert Trainer(dataclasses.replace(TINY_TRAIN, algo=name)).layout == cpu, name
-        assert backend.layout(algorithm.gpu_updates_unroll) == cpu, name
-        assert backend.layout(algorithm.gpu_updates_unroll, "cpu") == cpu, name
-        assert backend.layout(algorithm.gpu_updates_unroll, "gpu") == ProgramLayout(
+        assert program_layout(algorithm.gpu_updates_unroll) == cpu, name
+        assert program_layout(algorithm.gpu_updates_unroll, "cpu") == cpu, name
+        assert program_layout(algorithm.gpu_updates_unroll, "gpu") == ProgramLayout(
             updates_unroll=algorithm.gpu_updates_unroll, returns_unrolled=True,
             target_update_select=True, optimizer_barrier=True,
         ), name  # fmt: skip

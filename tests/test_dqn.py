@@ -15,9 +15,10 @@ from conftest import TINY_TRAIN  # pytest puts tests/ on sys.path
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from jaxnav import train
 from jaxnav.agents import dqn
 from jaxnav.algos.base import ProgramLayout
-from jaxnav.train import Trainer, backend
+from jaxnav.train import Trainer
 
 NUM_ACTIONS = 4
 
@@ -449,7 +450,9 @@ def test_target_updates_at_the_gradient_step_whose_env_steps_cross_the_period(
     parameters exactly when 4i + 4 is a multiple of 3, and otherwise those of an earlier step
     (neither the iteration's final parameters nor the previous target). Both forms of the
     update: the CPU's cond and the GPU's select."""
-    monkeypatch.setattr(backend, "layout", lambda *_: ProgramLayout(target_update_select=select))
+    monkeypatch.setattr(
+        train, "program_layout", lambda *_: ProgramLayout(target_update_select=select)
+    )
     c = dataclasses.replace(
         tiny_config, batch_size=2, replay_ratio=2.0, target_update_period=3,
         total_timesteps=10 * tiny_config.num_envs,
@@ -559,7 +562,7 @@ def test_updates_unrolled_two_a_trip_train_exactly_as_rolled(monkeypatch, update
     runs = []
     for unroll in (1, 2):
         layout = ProgramLayout(updates_unroll=unroll)
-        monkeypatch.setattr(backend, "layout", lambda *_, layout=layout: layout)
+        monkeypatch.setattr(train, "program_layout", lambda *_, layout=layout: layout)
         runs.append(jax.jit(Trainer(config).train)(jax.random.key(5)))
     rolled, unrolled = (jax.tree.leaves(run) for run in runs)
     for a, b in zip(rolled, unrolled, strict=True):

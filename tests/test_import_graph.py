@@ -24,6 +24,7 @@ LAYERS: list[list[str]] = [
         "jaxnav.loggers",
         "jaxnav.host",
         "jaxnav.version",
+        "jaxnav.backend",  # every backend-dependent choice; imports jax only
     ],
     ["jaxnav.pretrained"],
     ["jaxnav.environment", "jaxnav.checkpoints"],

@@ -19,6 +19,7 @@ import optax
 from flax import struct
 from jax.sharding import Mesh
 
+from jaxnav import backend
 from jaxnav.agents.layer_norm import layer_norm_relu
 from jaxnav.deploy.policy import GRU_GATES
 
@@ -398,7 +399,7 @@ def regression_loss(
     reduced once after it with ``diagnostics_means``); ``loss_type`` "huber" (delta 1) or
     "mse" (the squared error)."""
     q = apply_fn(params, obs)
-    q_taken = taken_values(q, action, masked=jax.default_backend() == "gpu")
+    q_taken = taken_values(q, action, masked=backend.masked_taken_values())
     td = q_taken - jax.lax.stop_gradient(target)
     if loss_type == "huber":
         per_sample = jnp.where(jnp.abs(td) <= 1.0, 0.5 * td**2, jnp.abs(td) - 0.5)

@@ -38,6 +38,8 @@ from jax.experimental import pallas as pl
 from jax.sharding import Mesh
 from jax.sharding import PartitionSpec as P
 
+from jaxnav import backend
+
 EPSILON = 1e-6  # flax.linen.LayerNorm's default
 # widths the kernels take: a whole row is one block, Triton wants powers of two
 KERNEL_WIDTHS = tuple(2**k for k in range(6, 12))  # 64 .. 2048
@@ -230,7 +232,7 @@ def _call(kernel, blocks: Blocks, args, out_shape, column_sums: bool, name: str)
     ``column_sums``, a last output of 4 rows x width an instance."""
     rows, width = args[0].shape
     instances, trips = _launch(blocks, rows)
-    interpret = jax.default_backend() != "gpu"
+    interpret = backend.pallas_interpret()
     if interpret:
         params = None
     else:

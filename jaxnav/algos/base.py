@@ -62,9 +62,10 @@ LossFn = Callable[[Any, Any], tuple[jax.Array, dict]]  # (params, batch) -> (los
 
 @dataclasses.dataclass(frozen=True)
 class ProgramLayout:
-    """How the training program is laid out for the backend it runs on
-    (``Loop.layout``, resolved by ``jaxnav.train.backend``, which says why each choice is
-    made). Each changes how XLA schedules the same operations, never the values computed."""
+    """How the training program is laid out for the backend it runs on (``Loop.layout``,
+    resolved by ``jaxnav.train.program_layout`` from ``jaxnav.backend``, which says why each
+    choice is made). Each changes how XLA schedules the same operations, never the values
+    computed."""
 
     # gradient steps one trip of a gradient-step loop runs, at most (``unroll``)
     updates_unroll: int = 1

@@ -26,14 +26,13 @@ from flax import struct
 from jax.sharding import NamedSharding
 from jax.sharding import PartitionSpec as P
 
-from jaxnav import pretrained, sharding
+from jaxnav import backend, pretrained, sharding
 from jaxnav.agents import dqn
-from jaxnav.algos.base import LossFn, TrainState, Transitions
+from jaxnav.algos.base import LossFn, ProgramLayout, TrainState, Transitions
 from jaxnav.config import HPARAMS, TrainConfig
 from jaxnav.deploy.policy import Policy
 from jaxnav.registration import make
 from jaxnav.sharding import ENVS, SEEDS
-from jaxnav.train import backend
 
 METRIC_NAMES = (
     "env_steps",
@@ -103,6 +102,19 @@ class HParams:
         return cls(**{n: jnp.asarray(getattr(config, n), jnp.float32) for n in names})
 
 
+def program_layout(gpu_updates_unroll: int, platform: str | None = None) -> ProgramLayout:
+    """How a training program is laid out on ``platform`` (JAX's default backend where None)
+    for an algorithm whose gradient-step loops run ``gpu_updates_unroll`` steps a trip on a
+    GPU (``Algorithm.gpu_updates_unroll``): the choices of ``jaxnav.backend``, which says why
+    each is made."""
+    return ProgramLayout(
+        updates_unroll=backend.updates_unroll(gpu_updates_unroll, platform),
+        returns_unrolled=backend.returns_unrolled(platform),
+        target_update_select=backend.target_update_select(platform),
+        optimizer_barrier=backend.optimizer_barrier(platform),
+    )
+
+
 class Trainer:
     """Builds the environment, network and the compiled pieces of a training run."""
 
@@ -130,19 +142,19 @@ class Trainer:
             else self.network
         )
         self.obs_size = self.env.observation_space(self.env_params).shape[0]
-        # how the program is laid out for this backend, resolved once (``backend``)
-        self.layout = backend.layout(config.algorithm.gpu_updates_unroll)
+        # how the program is laid out for this backend, resolved once (``program_layout``)
+        self.layout = program_layout(config.algorithm.gpu_updates_unroll)
         self.algorithm = config.algorithm(self)
         self._check_memory()
 
     @staticmethod
     def norm_impl(config: TrainConfig) -> str:
         """``QNetwork.norm_impl`` for ``config``: with ``fused_layer_norm``, the Pallas kernels
-        on a GPU (over several, on each device's rows); on a CPU the jnp form (the kernels'
-        math, a little faster than flax's there)."""
+        where ``backend.layer_norm_kernels`` (over several GPUs, on each device's rows); else
+        the jnp form of the kernels' math."""
         if not (config.layer_norm and config.fused_layer_norm):
             return "flax"
-        return "pallas" if jax.default_backend() == "gpu" else "fused"
+        return "pallas" if backend.layer_norm_kernels() else "fused"
 
     @property
     def network_input(self) -> dqn.InputSpec:

@@ -307,7 +307,9 @@ class RobotConfig:
                 "(0: laser_range)"
             )
         if not (self.trail_cell == 0 or _positive(self.trail_cell)):
-            raise ValueError(f"trail_cell={self.trail_cell!r}: must be a number of metres (0: no trail)")
+            raise ValueError(
+                f"trail_cell={self.trail_cell!r}: must be a number of metres (0: no trail)"
+            )
         if type(self.waypoint_moves) is not int or self.waypoint_moves not in (4, 8):
             raise ValueError(f"waypoint_moves={self.waypoint_moves!r}: must be 4 or 8")
         w = self.waypoint_distance
@@ -729,7 +731,9 @@ class RobotNav(Environment[RobotState, RobotParams]):
         radius = robot.get("radius", self.config.radius)
         if self.config.trail_cell:
             robot["origin"] = pose
-            robot["trail"] = self._visit(jnp.zeros((TRAIL_CELLS, TRAIL_CELLS), jnp.uint8), pose, pose)
+            robot["trail"] = self._visit(
+                jnp.zeros((TRAIL_CELLS, TRAIL_CELLS), jnp.uint8), pose, pose
+            )
         frame = self._frame(pose, goal, layout, params, None, radius, robot.get("trail"), pose)
         frame = self._sense(frame, jax.random.fold_in(key, 1))
         frames = jnp.broadcast_to(frame, (self.config.frames, frame.shape[0]))

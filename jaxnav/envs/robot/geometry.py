@@ -29,6 +29,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxnav import backend
+
 # A ray direction component below this magnitude counts as this much (of its sign): keeps
 # 1/d finite and moves a hit by at most ~1e-12 * range.
 _PARALLEL_EPS = 1e-12
@@ -102,12 +104,11 @@ def ray_box_distances(
 
     ``unrolled`` picks how the nearest box is found, with the same result bit for bit (a
     minimum is exact in any order): a reduction over the boxes (``False``), or a chain of
-    elementwise minimums box after box (``True``), which XLA runs on a GPU as one elementwise
-    kernel over the rays, 1.3-1.5x the env steps/s of RobotNav-v0 there, while on a CPU it
-    halves them. ``None``: the chain except on a CPU.
+    elementwise minimums box after box (``True``). ``None``: the backend's choice
+    (``backend.ray_cast_unrolled``: the chain except on a CPU).
     """
     if unrolled is None:
-        unrolled = jax.default_backend() != "cpu"
+        unrolled = backend.ray_cast_unrolled()
     origin = jnp.asarray(origin, jnp.float32)
     d = jnp.asarray(directions, jnp.float32)
     tilt = jnp.where(jnp.signbit(d), -_PARALLEL_EPS, _PARALLEL_EPS)
