@@ -104,6 +104,13 @@ ROWS: list[tuple[str, str, dict[str, Any], dict[str, Any]]] = [
         ODOMETRY,
         {"memory": 128, "num_epochs": 2, "num_minibatches": 8},
     ),
+    # SFL's idea: resets draw the bank's layouts the policy solves sometimes (--curriculum)
+    (
+        "row 12 + learnability curriculum",
+        "RobotNav-v0",
+        {**ODOMETRY, "frames": 8, **MIXED_GOAL},
+        {"curriculum": "learnability"},
+    ),
 ]
 
 
