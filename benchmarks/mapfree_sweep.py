@@ -111,6 +111,13 @@ ROWS: list[tuple[str, str, dict[str, Any], dict[str, Any]]] = [
         {**ODOMETRY, "frames": 8, **MIXED_GOAL, "trail_cell": 0.5},
         {},
     ),
+    # SFL's idea: resets draw the bank's layouts the policy solves sometimes (--curriculum)
+    (
+        "row 14 + learnability curriculum",
+        "RobotNav-v0",
+        {**ODOMETRY, "frames": 8, **MIXED_GOAL, "trail_cell": 0.5},
+        {"curriculum": "learnability"},
+    ),
 ]
 
 

@@ -211,6 +211,13 @@ class TrainConfig:
     clip_value: bool = setting(
         True, "ppo: clip the value's change from the rollout's as the ratio is clipped", boolean
     )
+    curriculum: str = setting(
+        "none",
+        "how fresh episodes draw their layout from the env's bank: none (uniformly) or "
+        "learnability (SFL's levels the policy solves sometimes: by p(1-p) of each layout's "
+        "recent success p, mixed with uniform draws; jaxnav.train.curriculum)",
+        one_of("none", "learnability"),
+    )
     # bookkeeping
     log_interval: int = setting(
         16_000, "env steps per metrics row and progress line", integer(1, MAX_STEPS)

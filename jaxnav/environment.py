@@ -8,7 +8,8 @@ It also declares everything the layers above read of an env, so that they never 
 env's own state or params: fixed test episodes (``reset_to``, ``reset_to_args``,
 ``reset_layout``, ``layouts_from``), a step without auto-reset (``step_no_reset``), evaluation
 (``shortest_path_length``, ``step_length``, ``layout_index``, ``num_layouts``; success is
-``info["goal_reached"]``) and drawing (``sensor_ranges``, ``scene``). A new env is a folder
+``info["goal_reached"]``), a curriculum's weighted layouts (``weighted_layouts``,
+``EnvParams.layout_cdf``) and drawing (``sensor_ranges``, ``scene``). A new env is a folder
 under ``jaxnav/envs/`` with its entries in ``jaxnav.registration``.
 """
 
@@ -39,14 +40,19 @@ class EnvParams:
     env config's field it comes from (``from_config``)."""
 
     max_steps_in_episode: int = 60
+    # Where fresh episodes draw their bank layout (an env with ``weighted_layouts``): None,
+    # uniformly; else float32[num_layouts], the cumulative probabilities of the layouts, last
+    # 1 (``layout_from_cdf``). Not a config field: training sets it (``--curriculum``).
+    layout_cdf: jax.Array | None = None
 
     @classmethod
     def from_config(cls, config: Any, **values: Any) -> Any:
         """These params from an env config: ``max_steps_in_episode`` from ``config.max_steps``,
         every other field from the config field of the same name, except those in ``values``
-        (e.g. a layout bank): a setting is declared once, in the config."""
+        (e.g. a layout bank) and ``layout_cdf``: a setting is declared once, in the config."""
         names = [f.name for f in dataclasses.fields(cls) if f.name not in values]
-        taken = {n: getattr(config, n) for n in names if n != "max_steps_in_episode"}
+        own = ("max_steps_in_episode", "layout_cdf")
+        taken = {n: getattr(config, n) for n in names if n not in own}
         return cls(max_steps_in_episode=config.max_steps, **taken, **values)
 
 
@@ -78,6 +84,9 @@ class Environment(Generic[StateT, ParamsT]):
     # negatives). Debug option: ``env.check_actions = True`` raises on one instead (through a
     # host callback, so also inside ``jit``: the error then arrives as a JAX runtime error).
     check_actions: bool = False
+    # Whether ``reset_env`` draws the layout by ``params.layout_cdf`` where it is set: what a
+    # curriculum over the layouts (``jaxnav.train.curriculum``) needs of an env.
+    weighted_layouts: bool = False
 
     @property
     def default_params(self) -> ParamsT:
@@ -320,6 +329,15 @@ class Environment(Generic[StateT, ParamsT]):
         )
         reward = jnp.asarray(reward, jnp.float32)
         return key_reset, obs, state, reward, terminated, truncated, dict(info)
+
+
+def layout_from_cdf(u: jax.Array, cdf: jax.Array) -> jax.Array:
+    """The layout (int32) that a uniform number ``u`` in [0, 1) draws from the cumulative
+    probabilities ``cdf`` (``EnvParams.layout_cdf``): one binary search, not a random number
+    per layout as ``jax.random.categorical`` draws."""
+    # unrolled: a reset runs every step under vmap, and a loop there is a loop on the device
+    index = jnp.searchsorted(cdf, u, side="right", method="scan_unrolled")
+    return jnp.minimum(index, cdf.shape[0] - 1).astype(jnp.int32)  # a last entry just below 1
 
 
 def _check_action(action: np.ndarray, n: int) -> None:

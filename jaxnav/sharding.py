@@ -44,7 +44,7 @@ def state_specs(state: Any, algo_specs: Any) -> Any:
     arrays are [seed, time, env, ...]).
 
     Per-env fields have the env axis after the seed axis; everything else (parameters,
-    optimizer, keys, counters) is per seed only.
+    optimizer, keys, counters, a curriculum's per-layout statistics) is per seed only.
     """
     per_env = P(SEEDS, ENVS)
     specs = jax.tree.map(lambda _: P(SEEDS), state)

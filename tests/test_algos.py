@@ -183,7 +183,7 @@ def test_a_checkpoint_of_the_former_state_layout_restores_as_saved(name, tmp_pat
     state = jax.device_get(jax.jit(jax.vmap(trainer.init))(jax.random.split(jax.random.key(3), 2)))
     algo_state = state.algo_state
     fields = {f: getattr(state, f) for f in state.__dataclass_fields__}
-    del fields["algo_state"], fields["memory"]  # memory came later still
+    del fields["algo_state"], fields["memory"], fields["curriculum"]  # both came later still
     former = FormerTrainState(
         **fields,
         target_params=getattr(algo_state, "target_params", None),
@@ -229,14 +229,22 @@ class TrainStateBeforeMemory:
     diverged_at: Any
 
 
+@struct.dataclass
+class TrainStateBeforeCurriculum(TrainStateBeforeMemory):
+    """``TrainState`` as checkpoints were saved before its ``curriculum`` field."""
+
+    memory: Any = None
+
+
+@pytest.mark.parametrize("former", [TrainStateBeforeMemory, TrainStateBeforeCurriculum])
 @pytest.mark.parametrize("name", sorted(ALGOS))
-def test_a_checkpoint_saved_before_memory_restores_as_saved(name, tmp_path):
+def test_a_checkpoint_saved_before_memory_or_curriculum_restores_as_saved(name, former, tmp_path):
     trainer = Trainer(dataclasses.replace(TINY_TRAIN, algo=name))
     state = jax.device_get(jax.jit(jax.vmap(trainer.init))(jax.random.split(jax.random.key(3), 2)))
-    fields = {f: getattr(state, f) for f in TrainStateBeforeMemory.__dataclass_fields__}
+    fields = {f: getattr(state, f) for f in former.__dataclass_fields__}
     metrics = {"loss": np.arange(3, dtype=np.float32)[None]}
     saving = Checkpoints(tmp_path / "checkpoints", keep=1)
-    saving.save(1, TrainStateBeforeMemory(**fields), metrics, {"seconds": {}})
+    saving.save(1, former(**fields), metrics, {"seconds": {}})
     saving.close()
     restoring = Checkpoints(tmp_path / "checkpoints", keep=1)
     like = jax.eval_shape(lambda: state)
@@ -245,7 +253,7 @@ def test_a_checkpoint_saved_before_memory_restores_as_saved(name, tmp_path):
     legacy = trainer.legacy_checkpoint_layouts(like)
     _, restored, _, _ = restoring.restore(like, metrics, legacy=legacy)
     restoring.close()
-    assert type(restored) is type(state) and restored.memory is None
+    assert type(restored) is type(state) and restored.memory is restored.curriculum is None
     assert jax.tree.structure(restored) == jax.tree.structure(state)
     as_data = lambda x: jax.random.key_data(x) if is_key(x) else x  # noqa: E731
     for a, b in zip(jax.tree.leaves(restored), jax.tree.leaves(state), strict=True):
@@ -255,11 +263,11 @@ def test_a_checkpoint_saved_before_memory_restores_as_saved(name, tmp_path):
 @pytest.mark.parametrize("name", sorted(set(ALGOS) - set(FORMER_ALGOS)))
 def test_an_algorithm_added_since_has_no_former_layout_to_try(name, tmp_path):
     """Its state has fields that layout never held: a checkpoint is read in today's, or in
-    the one before ``TrainState.memory``, only."""
+    the ones before ``TrainState.curriculum`` and ``TrainState.memory``, only."""
     trainer = Trainer(dataclasses.replace(TINY_TRAIN, algo=name))
     state = jax.device_get(jax.jit(jax.vmap(trainer.init))(jax.random.split(jax.random.key(3), 2)))
     like = jax.eval_shape(lambda: state)
-    assert len(trainer.legacy_checkpoint_layouts(like)) == 1
+    assert len(trainer.legacy_checkpoint_layouts(like)) == 2
     metrics = {"loss": np.arange(3, dtype=np.float32)[None]}
     saving = Checkpoints(tmp_path / "checkpoints", keep=1)
     saving.save(1, state, metrics, {"seconds": {}})

@@ -16,7 +16,7 @@ import signal
 import stat
 import subprocess
 import sys
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -307,8 +307,9 @@ def test_resume_hint_is_shell_quoted(tmp_path, capsys):
 
 
 # ------------------------------------------------------------------ checkpoint checksums
-def interrupted_after(out: Path, monkeypatch, last: int) -> None:
-    """Train the tiny run, killed just after saving checkpoint ``last``."""
+def interrupted_after(out: Path, monkeypatch, last: int, flags: Sequence[str] = TINY) -> None:
+    """Train the tiny run (or the run of ``flags``), killed just after saving checkpoint
+    ``last``."""
     save = checkpoints.Checkpoints.save
 
     def then_killed(self, logs_done, *args, **kwargs):
@@ -318,7 +319,7 @@ def interrupted_after(out: Path, monkeypatch, last: int) -> None:
 
     monkeypatch.setattr(checkpoints.Checkpoints, "save", then_killed)
     with pytest.raises(Killed):
-        train_main([*TINY, "--out", str(out)])
+        train_main([*flags, "--out", str(out)])
     monkeypatch.setattr(checkpoints.Checkpoints, "save", save)
 
 

@@ -47,6 +47,7 @@ def other_value(f: dataclasses.Field) -> tuple[str, object]:
         "algo": "pqn",
         "compute_dtype": "bfloat16",
         "init_from": "gridmaze-dqn",
+        "curriculum": "learnability",
     }
     value = choices.get(f.name) or {"huber": "mse", "adam": "sgd"}[d]
     return value, value

@@ -52,6 +52,9 @@ class TrainState:
     # with memory (``TrainConfig.memory``): each env's hidden state [N, memory] for its next
     # step, zeros where an episode starts; None without (checkpoints keep their layout)
     memory: Any = None
+    # with a curriculum (``TrainConfig.curriculum``): its per-layout statistics
+    # (``jaxnav.train.curriculum.LayoutStats``); None without
+    curriculum: Any = None
 
 
 # gradient steps per iteration, at most (a scan of them is compiled into every iteration)

@@ -64,7 +64,7 @@ import numpy as np
 from flax import struct
 
 from jaxnav import spaces
-from jaxnav.environment import Environment, EnvParams, EnvState, is_concrete
+from jaxnav.environment import Environment, EnvParams, EnvState, is_concrete, layout_from_cdf
 from jaxnav.envs.maze_algorithms import (
     bank_distances,
     check_fields,
@@ -363,6 +363,7 @@ class GridMaze(Environment[GridMazeState, GridMazeParams]):
     family: ClassVar[str] = "grid"  # which presets train it (``jaxnav.presets``)
 
     stochastic_step = False  # moves are deterministic
+    weighted_layouts = True  # reset_env reads params.layout_cdf
 
     def observation_layout(self, params: GridMazeParams) -> dict[str, Any]:
         entries = [{"index": i, **e} for i, e in enumerate(grid_layout(self, params))]
@@ -430,7 +431,11 @@ class GridMaze(Environment[GridMazeState, GridMazeParams]):
     # -- episodes -----------------------------------------------------------------
     def reset_env(self, key: jax.Array, params: GridMazeParams) -> tuple[jax.Array, GridMazeState]:
         bits = _reset_bits(key)
-        layout = _pick(bits[0] >> 8, params.bank.num_layouts)
+        if params.layout_cdf is None:
+            layout = _pick(bits[0] >> 8, params.bank.num_layouts)
+        else:  # the same 24 bits as a number in [0, 1)
+            u = (bits[0] >> 8).astype(jnp.float32) * (1.0 / (1 << 24))
+            layout = layout_from_cdf(u, params.layout_cdf)
         return self._reset_in(bits, layout, params)
 
     def reset_layout(

@@ -33,6 +33,7 @@ from jaxnav.config import HPARAMS, TrainConfig
 from jaxnav.deploy.policy import Policy
 from jaxnav.registration import make
 from jaxnav.sharding import ENVS, SEEDS
+from jaxnav.train import curriculum
 
 METRIC_NAMES = (
     "env_steps",
@@ -146,6 +147,7 @@ class Trainer:
         self.layout = program_layout(config.algorithm.gpu_updates_unroll)
         self.algorithm = config.algorithm(self)
         self._check_memory()
+        self._check_curriculum()
 
     @staticmethod
     def norm_impl(config: TrainConfig) -> str:
@@ -203,6 +205,30 @@ class Trainer:
                 f"training needs about {need / 2**30:.1f} GiB, more than this machine's "
                 f"{have / 2**30:.1f} GiB"
             )
+
+    def _check_curriculum(self) -> None:
+        """``ValueError`` (one line) for a curriculum over layouts on an env that does not draw
+        its layouts by weight or has one layout only."""
+        c = self.config
+        if c.curriculum == "none":
+            return
+        if not self.env.weighted_layouts:
+            raise ValueError(
+                f"curriculum={c.curriculum}: {c.env} does not draw its layouts by weight"
+            )
+        if self.env.num_layouts(self.env_params) < 2:
+            raise ValueError(
+                f"curriculum={c.curriculum}: {c.env} has one layout, nothing to choose between "
+                "(use a bank of several, e.g. GridMaze-Random-v0 or RobotNav-v0)"
+            )
+
+    def rollout_env_params(self, stats: curriculum.LayoutStats | None) -> Any:
+        """The env params training steps with: ``env_params``, with a curriculum's statistics
+        ``stats`` (``TrainState.curriculum``) the layouts' probabilities they give
+        (``curriculum.layout_cdf``)."""
+        if stats is None:
+            return self.env_params
+        return self.env_params.replace(layout_cdf=curriculum.layout_cdf(stats))
 
     @cached_property
     def init_params(self) -> Any:
@@ -291,8 +317,11 @@ class Trainer:
             params = jax.tree.map(lambda a, b: b.astype(a.dtype), params, self.init_params)
         # the algorithm's key derived, not split off: the runs' other keys stay as they were
         k_algo = jax.random.fold_in(k_net, 1)
+        stats = None
+        if c.curriculum != "none":
+            stats = curriculum.init(self.env.num_layouts(self.env_params))
         obs, env_state = jax.vmap(self.env.reset, in_axes=(0, None))(
-            jax.random.split(k_env, c.num_envs), self.env_params
+            jax.random.split(k_env, c.num_envs), self.rollout_env_params(stats)
         )
         return TrainState(
             params=params,
@@ -307,6 +336,7 @@ class Trainer:
             diverged=jnp.zeros((), jnp.int32),
             diverged_at=jnp.zeros((), jnp.int32),
             memory=self.network.initial_memory(c.num_envs),
+            curriculum=stats,
         )
 
     def epsilon(self, hp: HParams, env_steps: jax.Array) -> jax.Array:
@@ -362,9 +392,10 @@ class Trainer:
         else:
             q, hidden = self.learner_network.apply(acting_params, ts.obs), None
         action = self.algorithm.choose_actions(q, (k_act, k_eps), eps)
+        env_params = self.rollout_env_params(ts.curriculum)
         obs, env_state, reward, terminated, truncated, info = jax.vmap(
             self.env.step, in_axes=(0, 0, 0, None)
-        )(jax.random.split(k_step, c.num_envs), ts.env_state, action, self.env_params)
+        )(jax.random.split(k_step, c.num_envs), ts.env_state, action, env_params)
         done = terminated | truncated
         transitions = Transitions(
             ts.obs, action, reward, info["final_observation"], terminated, done, q.max(axis=-1),
@@ -382,6 +413,10 @@ class Trainer:
             "successes": done & info["goal_reached"],
             "collisions": done & info["collision"],
         }
+        if ts.curriculum is not None:
+            # the layout the step's episode ran in: the state before the step, not the one
+            # auto-reset put in its place
+            stats["layout"] = self.env.layout_index(ts.env_state)
         ts = ts.replace(
             env_state=env_state,
             obs=obs,
@@ -401,6 +436,13 @@ class Trainer:
         c = self.config
         env_steps = it * c.steps_per_iteration
         ts, q_finite, stats, aux = self.algorithm.iteration(ts, env_steps)
+        if ts.curriculum is not None:  # the episodes that ended in the iteration, by layout
+            stats = dict(stats)
+            layout = stats.pop("layout")
+            stats_after = curriculum.update(
+                ts.curriculum, layout, stats["episodes"], stats["successes"]
+            )
+            ts = ts.replace(curriculum=stats_after)
         stats = jax.tree.map(jnp.sum, stats)
         finite = q_finite.all() & jnp.isfinite(aux["q_mean"]) & jnp.isfinite(aux["q_max"])
         ts = self._flag_divergence(
@@ -481,16 +523,22 @@ class Trainer:
     ) -> list[tuple[dict[str, Any], Callable[[dict[str, Any]], TrainState]]]:
         """``(layout, upgrade)`` of each earlier layout a checkpoint of ``state_like`` may have
         been saved in, newest first: ``layout`` is ``state_like`` as those were saved, and
-        ``upgrade`` turns a state restored in it into a ``TrainState``. A run without memory
-        may have a checkpoint saved before ``TrainState.memory`` (its other fields, a dict),
-        or before the algorithms kept their own state in ``algo_state`` (a dict of the other
-        fields with ``LEGACY_ALGO_FIELDS`` in place of ``algo_state``, None where the
-        algorithm has no such field; not for an algorithm added since, whose state that
-        layout cannot hold). A run with memory has none: memory is newer than both."""
-        if state_like.memory is not None:
+        ``upgrade`` turns a state restored in it into a ``TrainState``. A run without a
+        curriculum may have a checkpoint saved before ``TrainState.curriculum`` (its other
+        fields, a dict); one without memory also before ``TrainState.memory`` (the fields
+        older than both), or before the algorithms kept their own state in ``algo_state`` (a
+        dict of the other fields with ``LEGACY_ALGO_FIELDS`` in place of ``algo_state``, None
+        where the algorithm has no such field; not for an algorithm added since, whose state
+        that layout cannot hold). A run with a curriculum has none: it is newer than all."""
+        if state_like.curriculum is not None:
             return []
-        fields = [n for n in state_like.__dataclass_fields__ if n != "memory"]
-        layouts = [({n: getattr(state_like, n) for n in fields}, lambda saved: TrainState(**saved))]
+        restore = lambda saved: TrainState(**saved)  # noqa: E731 (the missing fields are None)
+        fields = [n for n in state_like.__dataclass_fields__ if n != "curriculum"]
+        layouts = [({n: getattr(state_like, n) for n in fields}, restore)]
+        if state_like.memory is not None:
+            return layouts
+        fields = [n for n in fields if n != "memory"]
+        layouts.append(({n: getattr(state_like, n) for n in fields}, restore))
         algo_like = state_like.algo_state
         if not set(getattr(algo_like, "__dataclass_fields__", ())) <= set(LEGACY_ALGO_FIELDS):
             return layouts

@@ -113,7 +113,7 @@ from flax import struct
 
 from jaxnav import spaces
 from jaxnav.deploy import planner
-from jaxnav.environment import Environment, EnvParams, EnvState, is_concrete
+from jaxnav.environment import Environment, EnvParams, EnvState, is_concrete, layout_from_cdf
 from jaxnav.envs.maze_algorithms import (
     FLOAT32_MAX,
     check_fields,
@@ -608,6 +608,7 @@ class RobotNav(Environment[RobotState, RobotParams]):
     # a reset casts all rays anew and episodes last tens of steps: 1/16 of a batch ending
     # per step is rare (about 1/50 end per step under random actions)
     batch_reset_fraction = 1 / 16
+    weighted_layouts = True  # reset_env reads params.layout_cdf
 
     def __init__(self, config: RobotConfig | None = None, name: str = "RobotSimple-v0"):
         """``config`` as ``jaxnav.make`` validated it (or the default one)."""
@@ -686,7 +687,10 @@ class RobotNav(Environment[RobotState, RobotParams]):
     # -- episodes -----------------------------------------------------------------
     def reset_env(self, key: jax.Array, params: RobotParams) -> tuple[jax.Array, RobotState]:
         k_layout = jax.random.split(key, 4)[0]
-        layout = jax.random.randint(k_layout, (), 0, params.bank.num_mazes)
+        if params.layout_cdf is None:
+            layout = jax.random.randint(k_layout, (), 0, params.bank.num_mazes)
+        else:
+            layout = layout_from_cdf(jax.random.uniform(k_layout), params.layout_cdf)
         return self.reset_layout(key, params, layout)
 
     def reset_layout(
