@@ -28,6 +28,7 @@ from benchmarks.common import machine_info
 from benchmarks.generalist_sweep import train_one
 from jaxnav import export
 from jaxnav.config import TrainConfig
+from jaxnav.deploy.policy import Policy
 from jaxnav.envs.robot import generators
 from jaxnav.evaluate import run_episodes
 from jaxnav.experiments import HELD_OUT_MAZE_SEED, Family, default_families
@@ -149,12 +150,27 @@ def outcome(out: dict[str, Any], mask: np.ndarray | None = None) -> dict[str, fl
     }
 
 
-def run_row(index: int, episodes: int, policies: Path | None = None) -> dict[str, Any]:
-    label, env_id, env_kwargs, overrides = ROWS[index]
-    config = TrainConfig.for_env(
+def row_config(index: int) -> TrainConfig:
+    _, env_id, env_kwargs, overrides = ROWS[index]
+    return TrainConfig.for_env(
         env_id, algo="pqn", env_kwargs=env_kwargs, eval_episodes=0, **overrides
     )
-    trainer, state, timing = train_one(config, jax.random.split(jax.random.key(0), 1))
+
+
+def run_row(
+    index: int, episodes: int, policies: Path | None = None, trained: Path | None = None
+) -> dict[str, Any]:
+    """Train row ``index`` (or, with ``trained``, load its exported ``rowN.npz`` from that
+    folder: no training time then) and test it."""
+    label, env_id, env_kwargs, overrides = ROWS[index]
+    config = row_config(index)
+    if trained is None:
+        trainer, state, timing = train_one(config, jax.random.split(jax.random.key(0), 1))
+        policy = trainer.greedy_policy(state.params)
+    else:  # the policy's own float32 network, as jaxnav.evaluate runs an exported policy
+        trainer, params = export.to_trainer(Policy.load(trained / f"row{index}.npz"))
+        policy = trainer.greedy_policy(jax.tree.map(lambda x: x[0], params))
+        timing = {"train_s": None, "env_steps": config.total_timesteps, "tested": "exported npz"}
     row: dict[str, Any] = {
         "row": index,
         "label": label,
@@ -165,11 +181,10 @@ def run_row(index: int, episodes: int, policies: Path | None = None) -> dict[str
         "episodes": episodes,
         "tests": {},
     }
-    if policies is not None:  # the row's policy as an exported npz (jaxnav.deploy, pretrained)
+    if policies is not None and trained is None:  # the row's policy as an exported npz
         metadata = export.policy_metadata(trainer, {"benchmark": f"mapfree_sweep row {index}"})
         arrays = export.policy_arrays(trainer.network, state.params)
         export.write_policy(arrays, metadata, policies / f"row{index}.npz", "npz")
-    policy = trainer.greedy_policy(state.params)
     for family in families(config):
         env_name, kwargs = family.for_run(config)
         env, params = jaxnav.make(env_name, **kwargs)
@@ -192,12 +207,13 @@ def markdown(rows: list[dict[str, Any]]) -> str:
     lines = [head, "|" + "---|" * (5 + len(names))]
     for r in sorted(rows, key=lambda r: r["row"]):
         tests = r["tests"]
+        train_s = "n/a" if r["train_s"] is None else f"{r['train_s']:.1f}"
         cells = [
             f"{tests[n]['success']:.3f} / {tests[n]['collision']:.3f}" if n in tests else "n/a"
             for n in names
         ]
         lines.append(
-            f"| {r['row']} | {r['label']} | {r['train_s']:.1f} | {r['env_steps']:,} | "
+            f"| {r['row']} | {r['label']} | {train_s} | {r['env_steps']:,} | "
             f"{r['episodes']} | " + " | ".join(cells) + " |"
         )
     return "\n".join(lines) + (
@@ -214,6 +230,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--episodes", type=int, default=2000)
     p.add_argument("--out", type=Path, default=Path("benchmarks/results/mapfree_sweep.jsonl"))
     p.add_argument("--policies", type=Path, help="folder to write each row's policy (rowN.npz)")
+    p.add_argument("--trained", type=Path, help="test each row's rowN.npz from this folder")
     p.add_argument("--render", action="store_true", help="only rebuild the table from --out")
     args = p.parse_args(argv)
     if args.render:
@@ -231,12 +248,12 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     for i in indices:
         print(f"row {i}: {ROWS[i][0]}", flush=True)
-        row = run_row(i, args.episodes, args.policies) | {"machine": machine}
+        row = run_row(i, args.episodes, args.policies, args.trained) | {"machine": machine}
         rows.append(row)
         args.out.parent.mkdir(parents=True, exist_ok=True)
         with args.out.open("a") as f:
             f.write(json.dumps(row) + "\n")
-        print(f"  trained {row['env_steps']:,} steps in {row['train_s']} s", flush=True)
+        print(f"  {row['env_steps']:,} steps, trained in {row['train_s']} s", flush=True)
     args.out.with_suffix(".md").write_text(markdown(rows))
     print(markdown(rows))
     return 0
