@@ -318,3 +318,22 @@ def test_mapfree_gaps_splits_a_policy_by_narrowest_gap(tmp_path: Path, capsys) -
     split = {k: v for k, v in row.items() if k.startswith("narrowest gap")}
     assert split and sum(v["episodes"] for v in split.values()) == 8
     assert 0.0 <= row["all"]["success"] <= 1.0
+
+
+def test_mapfree_sweep_tests_an_exported_row_without_training(tmp_path: Path, monkeypatch) -> None:
+    from benchmarks import mapfree_sweep
+    from jaxnav import pretrained
+    from jaxnav.experiments import Family
+
+    # robotnav-sizes is row 11's policy; one small suite keeps the test short
+    (tmp_path / "row11.npz").write_bytes(pretrained.path("robotnav-sizes").read_bytes())
+    suite = Family("held-out", "own", {"maze_seed": 1_000_003, "num_layouts": 4})
+    monkeypatch.setattr(mapfree_sweep, "families", lambda config: [suite])
+    out = tmp_path / "sweep.jsonl"
+    argv = ["--rows", "11", "--episodes", "4", "--trained", str(tmp_path), "--out", str(out)]
+    assert mapfree_sweep.main(argv) == 0
+    row = json.loads(out.read_text())
+    assert row["row"] == 11 and row["train_s"] is None and row["tested"] == "exported npz"
+    assert set(row["tests"]) >= {"held-out"} and 0.0 <= row["tests"]["held-out"]["success"] <= 1
+    assert "| 11 | row 5 at goal radius 0.3 m" in out.with_suffix(".md").read_text()
+    assert "| n/a |" in out.with_suffix(".md").read_text()
