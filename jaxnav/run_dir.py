@@ -387,16 +387,19 @@ def load_trained_params(run: Path, trainer: Trainer) -> Any:
 CARRIED_FIELDS = (
     "num_lasers", "laser_fov", "laser_range", "obs_absolute", "obs_proximity", "obs_heading",
     "obs_goal_bearing", "waypoint_distance", "waypoint_moves", "frames", "goal_range",
-    "obs_last_action", "obs_radius", "speed", "turn_speed", "dt", "radius", "backend",  # robot
+    "obs_last_action", "obs_radius", "trail_cell", "speed", "turn_speed", "dt", "radius",
+    "backend",  # robot
     "size", "obs_mode", "sensor_radius", "waypoint_cells",  # grid envs
 )  # fmt: skip
 # those of them that set what the network reads: a policy only runs with the trained values
 OBSERVATION_FIELDS = frozenset(
     {"num_lasers", "laser_fov", "laser_range", "obs_absolute", "obs_proximity", "obs_heading"}
     | {"obs_goal_bearing", "waypoint_distance", "waypoint_moves", "frames", "goal_range"}
-    | {"obs_last_action", "obs_radius"}
+    | {"obs_last_action", "obs_radius", "trail_cell"}
     | {"obs_mode", "sensor_radius", "waypoint_cells"}
 )
+# carried only where set: the env kwargs of policies without them stay as they were
+CARRIED_IF_SET = frozenset({"trail_cell"})
 
 
 def policy_env(
@@ -420,7 +423,11 @@ def policy_env(
         return own_env, {**own_kwargs, **overrides}
     # the fields ``env`` has (a grid's size is no robot's); ValueError for bad overrides
     fields = {f.name for f in dataclasses.fields(env_config(env, **overrides))}
-    carried = {k: trained[k] for k in CARRIED_FIELDS if k in trained and k in fields}
+    carried = {
+        k: trained[k]
+        for k in CARRIED_FIELDS
+        if k in trained and k in fields and (trained[k] or k not in CARRIED_IF_SET)
+    }
     return env, {**carried, **overrides}
 
 

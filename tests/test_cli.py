@@ -79,6 +79,7 @@ def test_evaluate_reads_the_run_and_generalizes(tiny_run, tmp_path, capsys):
         (["--env-arg", "size=0"], "size=0"),
         (["--env-arg", "obstacle_density=0.999"], "obstacle_density=0.999"),
         (["--env-arg", "colour=3"], "colour"),
+        (["--env", "RobotSimple-v0", "--env-arg", "trail_cell=-1"], "trail_cell=-1: must be"),
         (["--batch-size", "5000", "--buffer-size", "4000"], "batch_size=5000"),
         (["--learning-starts", "10000000"], "learning_starts=10000000"),
         (["--gamma", "1.5"], "gamma=1.5"),

@@ -583,3 +583,61 @@ def test_a_drawn_radius_fits_the_mazes_narrowest_gap():
     radius, layout = np.asarray(s.radius), np.asarray(s.layout)
     assert (radius <= np.minimum(0.24, fit[layout]) + 1e-6).all() and (radius >= 0.1).all()
     assert radius[layout % 2 == 1].max() > 0.2  # the jaxnav levels draw the whole range
+
+
+def test_the_odometry_trail_counts_steps_per_cell_from_each_episodes_start():
+    """trail_cell: reset counts the start once in a fresh trail whose origin is the start
+    pose, every step counts the new pose's cell, the frame's last 17 values read the counts
+    (/ 16, clipped at 1) around the robot, and an auto-reset starts a fresh trail."""
+    from jaxnav.envs.robot import layout
+    from jaxnav.envs.robot.env import TRAIL_CELLS
+
+    env, params = jaxnav.make("RobotSimple-v0", backend="kinematic", trail_cell=0.5)
+    n = 1 + 2 * len(layout.TRAIL_ANGLES)
+    plain, _ = jaxnav.make("RobotSimple-v0", backend="kinematic")
+    obs_layout = env.observation_layout(params)
+    assert env.frame_size == plain.frame_size + n == obs_layout["frame_size"]
+    entries = obs_layout["entries"]
+    assert len(entries) == env.observation_space(params).shape[0] == 4 * env.frame_size
+    assert [e["name"] for e in entries[-n:]] == ["trail"] * n
+    assert [(e["cells"], e["angle_rad"]) for e in entries[-n + 1 : -n + 3]] == [(1, 0), (2, 0)]
+    pose = jnp.array([2.5, 1.5, -1.0])
+    obs, s = env.reset_to(KEY, params, pose, jnp.array([8.5, 8.5]))
+    np.testing.assert_array_equal(s.origin, pose)
+    assert s.trail.shape == (TRAIL_CELLS, TRAIL_CELLS) and s.trail.dtype == jnp.uint8
+    centre = TRAIL_CELLS // 2
+    assert int(s.trail.sum()) == 1 and int(s.trail[centre, centre]) == 1
+    trail = np.asarray(obs[-n:])
+    assert trail[0] == 1 / 16 and (trail[1:] == 0).all()  # only the start is counted
+    step_env = jax.jit(env.step_env)
+    # two turns left (heading 0) and 0.5 m along +x: into the cell (1, 1) of the start's frame
+    for k, action in enumerate((LEFT, LEFT, FORWARD, FORWARD)):
+        obs, s, *_ = step_env(KEY, s, action, params)
+        assert int(s.trail.sum()) == k + 2  # one more step counted
+        np.testing.assert_array_equal(s.origin, pose)  # the odometry frame stays the start's
+    assert int(s.trail[centre, centre]) == 4 and int(s.trail[centre + 1, centre + 1]) == 1
+    trail = np.asarray(obs[-n:])
+    # own cell: 1 step; one cell behind (angle pi, the 5th angle: value 1 + 2 * 4) the start
+    want = np.zeros(n, np.float32)
+    want[0], want[1 + 2 * 4] = 1 / 16, 4 / 16
+    np.testing.assert_array_equal(trail, want)
+    for _ in range(20):  # turning in place: the own cell's reading saturates at 1
+        obs, s, *_ = step_env(KEY, s, LEFT, params)
+    assert float(obs[-n]) == 1.0 and int(s.trail[centre + 1, centre + 1]) == 21
+    assert (np.asarray(obs[-n:]) >= 0).all() and (np.asarray(obs[-n:]) <= 1).all()
+    full = s.trail.at[centre + 1, centre + 1].set(255)  # counts stop at uint8's 255
+    assert int(env._visit(full, s.origin, s.pose)[centre + 1, centre + 1]) == 255
+    # an auto-reset inside step: a fresh trail at the new episode's start
+    short = params.replace(max_steps_in_episode=int(s.time) + 1)
+    obs, s2, _, _, truncated, _ = jax.jit(env.step)(KEY, s, LEFT, short)
+    assert bool(truncated) and int(s2.time) == 0
+    assert int(s2.trail.sum()) == 1
+    np.testing.assert_array_equal(s2.origin, s2.pose)
+    assert float(obs[-n]) == 1 / 16 and (np.asarray(obs[-n + 1 :]) == 0).all()
+
+
+@pytest.mark.parametrize("bad", [-1.0, "0.5", math.nan, math.inf, True])
+def test_a_bad_trail_cell_is_refused_in_one_line(bad):
+    with pytest.raises(ValueError, match=r"^trail_cell=.*: must be a positive number") as e:
+        jaxnav.make("RobotSimple-v0", backend="kinematic", trail_cell=bad)
+    assert "\n" not in str(e.value)

@@ -140,7 +140,7 @@ MAX_WAYPOINT_DISTANCE = 10.0  # metres
 # metres a drawn radius leaves each side of a maze's narrowest gap: with turns of 0.2 rad a
 # step, a heading is off a corridor's axis by up to 0.1 rad and drifts 0.1 m in 7 steps
 FIT_MARGIN = 0.1
-TRAIL_CELLS = 64  # the trail's cells per side, centred on the start (outside: not kept, reads 0)
+TRAIL_CELLS = layout.TRAIL_CELLS  # the trail's cells per side (in layout: the metadata has it)
 MAX_WAYPOINT_CELLS = 64  # the lookahead is unrolled, one step per cell
 NUM_LASERS = 7  # the paper's; RobotConfig.num_lasers' default
 # the geodesic table's bytes (int16[B, goals, rows, cols]); beyond this a bank is refused, with
@@ -308,7 +308,7 @@ class RobotConfig:
             )
         if not (self.trail_cell == 0 or _positive(self.trail_cell)):
             raise ValueError(
-                f"trail_cell={self.trail_cell!r}: must be a number of metres (0: no trail)"
+                f"trail_cell={self.trail_cell!r}: must be a positive number of metres (0: no trail)"
             )
         if type(self.waypoint_moves) is not int or self.waypoint_moves not in (4, 8):
             raise ValueError(f"waypoint_moves={self.waypoint_moves!r}: must be 4 or 8")
@@ -1108,7 +1108,9 @@ class RobotNav(Environment[RobotState, RobotParams]):
         # frames and recasts them for every stacked element (half of a GPU step's time)
         return jax.lax.optimization_barrier(jnp.concatenate(parts))
 
-    def _trail_cell(self, origin: jax.Array, xy: jax.Array) -> tuple[jax.Array, jax.Array]:
+    def _trail_cell(
+        self, origin: jax.Array, xy: jax.Array
+    ) -> tuple[jax.Array, jax.Array, jax.Array]:
         """``(row, col)`` of the trail cells holding points ``xy`` ([..., 2], the maze's frame)
         in the odometry frame of the start pose ``origin``, and whether they are on the
         trail's grid (the start at the centre of cell (TRAIL_CELLS / 2, TRAIL_CELLS / 2))."""

@@ -10,6 +10,7 @@ import numpy as np
 
 TRAIL_ANGLES = tuple(np.linspace(0.0, 2 * np.pi, 8, endpoint=False))  # from the heading
 TRAIL_SATURATION = 16  # steps in a trail cell that read as 1
+TRAIL_CELLS = 64  # the trail's cells per side, centred on the start (outside: not kept, reads 0)
 
 
 def entry(name: str, scale: float = 1.0, clip: Sequence[float] | None = None, **more: Any):
@@ -128,7 +129,7 @@ def action_layout(env: Any, action_names: Sequence[str]) -> list[dict[str, Any]]
 def sensor_layout(env: Any) -> dict[str, Any]:
     """The robot's lidar, frames and control period as the policy was trained with them."""
     c = env.config
-    return {
+    out = {
         "num_lasers": c.num_lasers,
         "laser_fov_deg": c.laser_fov,
         "laser_range_m": c.laser_range,
@@ -144,3 +145,12 @@ def sensor_layout(env: Any) -> dict[str, Any]:
         "waypoint_distance_m": c.waypoint_distance or None,
         "waypoint_moves": c.waypoint_moves if c.waypoint_distance else None,
     }
+    if c.trail_cell:  # (absent without: the metadata of policies without a trail stays as it was)
+        out |= {
+            "trail_cell_m": c.trail_cell,
+            "trail_cells": TRAIL_CELLS,
+            "trail_saturation": TRAIL_SATURATION,
+            "trail_frame": "the pose of the robot's first observation after a reset (its "
+            "odometry's origin); cell (trail_cells // 2, trail_cells // 2) is centred on it",
+        }
+    return out
