@@ -6,6 +6,7 @@ fields of view, mounting) is read as documented."""
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import re
 import types
@@ -17,7 +18,17 @@ import pytest
 
 from jaxnav import export
 from jaxnav.config import TrainConfig
-from jaxnav.deploy.sensors import LaserScan, ScanObservation, resample_scan, yaw_from_quaternion
+from jaxnav.deploy.navigator import Navigator
+from jaxnav.deploy.policy import Policy
+from jaxnav.deploy.sensors import (
+    TRAIL_ANGLES,
+    LaserScan,
+    OdometryTrail,
+    ScanObservation,
+    resample_scan,
+    trail_points,
+    yaw_from_quaternion,
+)
 from jaxnav.envs.robot import geometry
 from jaxnav.train import Trainer
 
@@ -316,3 +327,128 @@ def test_a_map_free_policy_reads_its_previous_action_and_radius_as_the_env_does(
                 break
     with pytest.raises(ValueError, match=r"action=7: must be an index in \[0, 4\)"):
         observe.acted(7)
+
+
+# a map-free policy with the odometry trail (RobotNav-v0's mazes, the kinematic backend)
+TRAIL_KWARGS = {
+    "num_layouts": 8, "backend": "kinematic", "waypoint_distance": 0.0, "trail_cell": 0.5,
+    "goal_range": 16.0, "obs_last_action": True, "frames": 2,
+}  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def trail_robot():
+    """``(env, params, metadata, trainer)`` of a map-free policy with the odometry trail."""
+    config = TrainConfig.for_env("RobotNav-v0", env_kwargs=TRAIL_KWARGS, hidden_sizes=(8,))
+    trainer = Trainer(config)
+    return trainer.env, trainer.env_params, export.policy_metadata(trainer), trainer
+
+
+def env_scan(env, params, state) -> LaserScan:
+    """The env's own laser ranges at ``state`` as a scan with one reading per beam."""
+    angles = np.asarray(env.angles, np.float64)
+    return LaserScan(
+        angle_min=float(angles[0]),
+        angle_increment=float(angles[1] - angles[0]),
+        range_max=12.0,
+        ranges=cast(env, params, state, env.angles, env.config.laser_range),
+    )
+
+
+def test_the_odometry_trail_is_the_envs_over_whole_episodes(trail_robot):
+    """Fed the env's laser ranges, its poses (odometry) and goals, ``ScanObservation`` builds
+    the env's observation, trail included, at each of 60 steps of random play (auto-resets
+    included: ``reset()`` at each new episode), and keeps the env's count grid."""
+    env, params, meta, _ = trail_robot
+    n = 1 + 2 * len(TRAIL_ANGLES)
+    step = jax.jit(env.step)
+    observe = ScanObservation(meta)
+    assert observe.trail is not None and observe.trail.grid.shape == (64, 64)
+    key = jax.random.key(3)
+    obs, state = jax.jit(env.reset)(key, params)
+    read_around = 0
+    for k in jax.random.split(key, 60):
+        got = observe(env_scan(env, params, state), np.asarray(state.pose), np.asarray(state.goal))
+        np.testing.assert_allclose(got, np.asarray(obs), atol=1e-5, rtol=0)
+        np.testing.assert_array_equal(observe.trail.grid, np.asarray(state.trail))
+        np.testing.assert_array_equal(observe.trail.origin, np.asarray(state.origin))
+        read_around += int((got[-n + 1 :] > 0).any())
+        action = int(jax.random.randint(k, (), 0, env.num_actions))
+        observe.acted(action)
+        obs, state, _, terminated, truncated, _ = step(k, state, action, params)
+        if bool(terminated | truncated):
+            observe.reset()
+    assert read_around > 0  # the readings around the robot were exercised, not only its cell
+
+
+def test_the_trail_counts_and_reads_as_documented():
+    """``OdometryTrail`` alone: the start counted once, counts stop at 255, points off the
+    grid read 0, a refused pose leaves the trail as it was, reset forgets it."""
+    trail = OdometryTrail(0.5)
+    assert trail_points()[:3] == [(0, 0.0), (1, 0.0), (2, 0.0)] and len(trail_points()) == 17
+    with pytest.raises(ValueError, match=r"no trail yet"):
+        trail.reading((0.0, 0.0, 0.0))
+    trail.visit((3.0, 4.0, 0.5))
+    assert trail.grid.sum() == 1 and trail.grid[32, 32] == 1
+    np.testing.assert_array_equal(trail.origin, np.float32([3.0, 4.0, 0.5]))
+    for _ in range(300):
+        trail.visit((3.0, 4.0, 2.0))  # turning in place: the start's cell
+    assert trail.grid[32, 32] == 255 and trail.reading((3.0, 4.0, 0.0))[0] == 1.0
+    trail.visit((300.0, 4.0, 0.0))  # 297 m away: off the 32 m grid, not counted
+    assert trail.grid.sum() == 255 and (trail.reading((300.0, 4.0, 0.0)) == 0).all()
+    with pytest.raises(ValueError, match=r"pose=\(.*nan.*\): must be finite"):
+        trail.visit((math.nan, 4.0, 0.0))
+    with pytest.raises(ValueError, match=r"pose=.*: beyond float32"):
+        trail.visit((1e39, 4.0, 0.0))
+    assert trail.grid.sum() == 255
+    trail.reset()
+    assert trail.grid.sum() == 0 and trail.origin is None
+    for bad, named in [
+        ({"cell": -0.5}, "trail_cell_m=-0.5"),
+        ({"cell": math.nan}, "trail_cell_m=(nan,): must be finite"),
+        ({"cell": 0.5, "cells": 0}, "trail_cells=0"),
+        ({"cell": 0.5, "saturation": 0}, "trail_saturation=0"),
+    ]:
+        with pytest.raises(ValueError, match=re.escape(named)):
+            OdometryTrail(**bad)
+
+
+def test_a_policy_exported_with_the_trail_runs_from_its_file(trail_robot, tmp_path):
+    """The export round trip: the trail's cell, grid and saturation in the metadata;
+    ``Policy.load``, ``ScanObservation`` and ``Navigator`` (fresh trail per goal) take it;
+    policies without the trail have no trail keys; another env id carries the trail."""
+    env, params, meta, trainer = trail_robot
+    arrays = export.policy_arrays(
+        trainer.network, trainer.network.init(jax.random.key(0), jnp.zeros((1, trainer.obs_size)))
+    )
+    npz = export.write_policy(arrays, meta, tmp_path / "trail.npz", "npz")
+    policy = Policy.load(npz)
+    sensors = policy.metadata["sensors"]
+    assert (sensors["trail_cell_m"], sensors["trail_cells"], sensors["trail_saturation"]) == (
+        0.5, 64, 16
+    )  # fmt: skip
+    _, state = env.reset(jax.random.key(1), params)
+    args = (env_scan(env, params, state), np.asarray(state.pose), np.asarray(state.goal))
+    obs = ScanObservation(policy)(*args)
+    assert obs.shape == (policy.metadata["observation"]["size"],) and obs[-17] == 1 / 16
+    assert 0 <= policy.act(obs) < 4
+    # a file exported before the metadata had the trail's keys: the env config's trail_cell
+    old = json.loads(json.dumps(policy.metadata))
+    for key in ("trail_cell_m", "trail_cells", "trail_saturation", "trail_frame"):
+        del old["sensors"][key]
+    np.testing.assert_array_equal(ScanObservation(old)(*args), obs)
+    old["env_config"]["trail_cell"] = 0.0
+    with pytest.raises(ValueError, match="reads an odometry trail, but .* no trail_cell_m"):
+        ScanObservation(old)
+    nav = Navigator(policy)
+    for _ in range(2):  # a goal's trail starts afresh
+        nav.reset(goal=args[2])
+        for _ in range(3):
+            nav.act(scan=args[0], pose=args[1])
+        assert nav.observe.trail.grid.sum() == 3
+    plain = Trainer(TrainConfig.for_env("RobotNav-v0", env_kwargs={"num_layouts": 8}))
+    assert not any(k.startswith("trail") for k in export.policy_metadata(plain)["sensors"])
+    _, kwargs = export.env_for(policy, "RobotComplex-v0")
+    assert kwargs["trail_cell"] == 0.5
+    with pytest.raises(ValueError, match=r"--env-arg trail_cell=0: .* with trail_cell=0.5"):
+        export.env_for(policy, "RobotComplex-v0", {"trail_cell": 0})

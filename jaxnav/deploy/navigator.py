@@ -100,8 +100,8 @@ class Navigator:
 
     def reset(self, goal: Sequence[float]) -> None:
         """Start driving to ``goal`` (x, y), in the map's frame: plans to it, forgets the
-        stacked frames, the last action and the policy's memory; ``ValueError`` naming a goal
-        that is not finite, off the map or inside a wall."""
+        stacked frames, the last action, the odometry trail and the policy's memory;
+        ``ValueError`` naming a goal that is not finite, off the map or inside a wall."""
         gx, gy = check_finite("goal", goal, 2)
         if self.planner is not None:
             self.planner.set_goal((gx, gy))

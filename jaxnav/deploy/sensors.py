@@ -35,6 +35,13 @@ on the robot's map provides it (``jaxnav.deploy.planner``, the simulator's own, 
 ``jaxnav.deploy.navigator.Navigator`` runs it; or the point of ROS nav2's global plan that
 distance ahead, or the goal itself when closer), given as ``waypoint=(x, y)`` in the pose's
 frame.
+
+Policies with an odometry trail (metadata ``trail_cell_m``; ``OdometryTrail``) count the
+steps the robot's path spends in square cells of that side, in the frame of the first pose
+after ``reset()``, and read the counts around the robot: give poses of one continuous odometry
+(any fixed frame; a localizer's jumps would move the robot against its own trail), call once
+per control step, and ``reset()`` at every new goal for a fresh trail, as an episode starts
+one in the simulator.
 """
 
 from __future__ import annotations
@@ -220,9 +227,114 @@ def resample_scan(
     return out
 
 
+# the simulator's (``jaxnav.envs.robot.layout``: its TRAIL_ANGLES, TRAIL_CELLS and
+# TRAIL_SATURATION), written out here so that this module needs no JAX
+TRAIL_ANGLES = tuple(float(a) for a in np.linspace(0.0, 2 * np.pi, 8, endpoint=False))
+TRAIL_CELLS = 64
+TRAIL_SATURATION = 16
+TRAIL_COUNT_MAX = 255  # a cell's count is a uint8 and stops there, as the simulator's
+FLOAT32_MAX = float(np.finfo(np.float32).max)  # the simulator's poses and sizes are float32
+
+
+def trail_points(angles: Sequence[float] = TRAIL_ANGLES) -> list[tuple[int, float]]:
+    """``(cells away, angle from the heading)`` of the simulator's trail readings, in its
+    order: the robot's own cell, then for each angle the point 1 and 2 cells away."""
+    return [(0, 0.0)] + [(k, float(a)) for a in angles for k in (1, 2)]
+
+
+class OdometryTrail:
+    """The robot env's odometry trail (``RobotConfig.trail_cell``) with numpy alone, float32
+    arithmetic in the env's order so that a cell's count is the env's: steps the robot spent
+    in each square cell of side ``cell`` metres of a ``cells`` x ``cells`` grid in the frame of
+    the origin (the first pose ``visit`` gets after ``reset``, at the centre of cell
+    ``(cells // 2, cells // 2)``); counts stop at 255; points off the grid are not counted
+    and read 0. ``reading(pose)``: the counts at ``points`` (cells away, angle from the
+    heading), each / ``saturation`` clipped at 1."""
+
+    def __init__(
+        self,
+        cell: float,
+        cells: int = TRAIL_CELLS,
+        saturation: float = TRAIL_SATURATION,
+        points: Sequence[tuple[float, float]] | None = None,
+    ):
+        """``points``: None for the simulator's 17 (``trail_points()``)."""
+        (size,) = check_finite("trail_cell_m", [cell], 1)
+        if not 0 < size <= FLOAT32_MAX or np.float32(size) == 0:
+            raise ValueError(f"trail_cell_m={cell!r}: must be a positive number of metres")
+        if isinstance(cells, bool) or not isinstance(cells, (int, np.integer)) or cells < 1:
+            raise ValueError(f"trail_cells={cells!r}: must be a positive integer")
+        (sat,) = check_finite("trail_saturation", [saturation], 1)
+        if sat <= 0:
+            raise ValueError(f"trail_saturation={saturation!r}: must be a positive number")
+        points = trail_points() if points is None else list(points)
+        flat = check_finite("trail points", [v for p in points for v in p], 2 * len(points))
+        self.cell = np.float32(size)  # the env divides by its config's float in float32
+        self.cells = int(cells)
+        self.saturation = np.float32(sat)
+        self.reach = np.asarray(flat[0::2], np.float32)  # cells away
+        self.angles = np.asarray(flat[1::2], np.float32)  # from the heading
+        self.grid = np.zeros((self.cells, self.cells), np.uint8)
+        self.origin: np.ndarray | None = None  # float32 x, y, heading
+
+    def reset(self) -> None:
+        """Forget the trail: the next ``visit`` sets the origin and counts the start."""
+        self.grid[:] = 0
+        self.origin = None
+
+    @staticmethod
+    def _pose(pose: Sequence[float]) -> np.ndarray:
+        x, y, yaw = check_finite("pose", pose, 3)
+        if max(abs(x), abs(y), abs(yaw)) > FLOAT32_MAX:
+            raise ValueError(f"pose={(x, y, yaw)!r}: beyond float32")
+        return np.asarray([x, y, yaw], np.float32)
+
+    def _cells(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(row, col, inside)`` of the cells holding points ``xy`` (float32 [n, 2]), as the
+        env's ``_trail_cell``: the offset from the origin turned by minus its heading."""
+        d = xy - self.origin[:2]
+        cos, sin = np.cos(self.origin[2]), np.sin(self.origin[2])
+        local = np.stack([cos * d[:, 0] + sin * d[:, 1], cos * d[:, 1] - sin * d[:, 0]])
+        index = np.floor(local / self.cell + np.float32(0.5))
+        half = self.cells // 2
+        # compared as floats: a point far off the grid never wraps around in an integer cast
+        inside = ((index >= -half) & (index < self.cells - half)).all(axis=0)
+        index = np.where(inside, index, -half).astype(np.int64) + half
+        return index[0], index[1], inside
+
+    def visit(self, pose: Sequence[float]) -> None:
+        """Count one step at ``pose`` (x, y, yaw); the first after ``reset`` is the origin."""
+        pose = self._pose(pose)
+        if self.origin is None:
+            self.origin = pose
+        row, col, inside = self._cells(pose[None, :2])
+        if inside[0] and self.grid[row[0], col[0]] < TRAIL_COUNT_MAX:
+            self.grid[row[0], col[0]] += 1
+
+    def counts(self, pose: Sequence[float]) -> np.ndarray:
+        """Steps spent in the cells of ``points`` around ``pose`` (0 off the grid), ``int64``."""
+        if self.origin is None:
+            raise ValueError("no trail yet: visit(pose) first (after reset())")
+        pose = self._pose(pose)
+        step = self.cell * self.reach  # float32, as the env's trail_cell * [1, 2]
+        angles = pose[2] + self.angles
+        ring = np.stack([np.cos(angles), np.sin(angles)], -1) * step[:, None]
+        # the robot's own cell is read at the pose itself, as the env reads it
+        points = np.where((self.reach == 0)[:, None], pose[None, :2], pose[None, :2] + ring)
+        row, col, inside = self._cells(points.astype(np.float32))
+        return np.where(inside, self.grid[row, col], 0).astype(np.int64)
+
+    def reading(self, pose: Sequence[float]) -> np.ndarray:
+        """The observation's trail values at ``pose``: ``min(count / saturation, 1)``,
+        ``float32[len(points)]``."""
+        counts = self.counts(pose).astype(np.float32)
+        return np.minimum(counts / self.saturation, np.float32(1.0))
+
+
 class ScanObservation:
     """Builds a policy's observations from scans, poses, goals (and waypoints), keeping the
-    last ``frames`` frames as the simulator does; ``reset()`` at each episode's start."""
+    last ``frames`` frames (and an odometry trail, ``OdometryTrail``) as the simulator does;
+    ``reset()`` at each episode's start."""
 
     def __init__(
         self,
@@ -259,6 +371,10 @@ class ScanObservation:
             (self.radius,) = check_finite("radius", [radius], 1)
             if self.radius <= 0:
                 raise ValueError(f"radius={radius!r}: must be a positive number of metres")
+        # an odometry trail: built from the pose each call, cleared by reset()
+        self._trail_slots = [i for i, e in enumerate(self.frame_entries) if e["name"] == "trail"]
+        trail = [self.frame_entries[i] for i in self._trail_slots]
+        self.trail = self._trail(metadata, trail) if trail else None
         self._last_action: int | None = None
         self._acted = True  # no action is owed before the first observation
         self.mount_yaw = float(mount_yaw)
@@ -266,12 +382,33 @@ class ScanObservation:
         self.fill_uncovered = fill_uncovered
         self._stack: list[np.ndarray] = []
 
+    @staticmethod
+    def _trail(metadata: dict[str, Any], entries: list[dict[str, Any]]) -> OdometryTrail:
+        """The trail of a policy that reads one, as the metadata gives it."""
+        sensors = metadata["sensors"]
+        cell = sensors.get("trail_cell_m")
+        if cell is None:  # exported before the metadata had it: the env config's field
+            cell = (metadata.get("env_config") or {}).get("trail_cell")
+        if not cell:
+            raise ValueError(
+                "this policy reads an odometry trail, but its metadata gives no trail_cell_m"
+            )
+        # before the metadata had them, every trail had the simulator's grid and saturation
+        return OdometryTrail(
+            cell,
+            sensors.get("trail_cells", TRAIL_CELLS),
+            sensors.get("trail_saturation", TRAIL_SATURATION),
+            [(e["cells"], e["angle_rad"]) for e in entries],
+        )
+
     def reset(self) -> None:
-        """Forget the stacked frames (the next call fills every frame with its own) and the
-        previous action."""
+        """Forget the stacked frames (the next call fills every frame with its own), the
+        previous action and the odometry trail (the next pose is its new origin)."""
         self._stack = []
         self._last_action = None
         self._acted = True
+        if self.trail is not None:
+            self.trail.reset()
 
     def acted(self, action: int) -> None:
         """Record the action the robot executed after the last observation: a policy that
@@ -291,7 +428,8 @@ class ScanObservation:
         goal: Sequence[float],
         waypoint: Sequence[float] | None = None,
     ) -> np.ndarray:
-        """One frame ``float32[frame_size]`` (no stacking)."""
+        """One frame ``float32[frame_size]`` (no stacking). A policy with an odometry trail
+        counts ``pose`` in it as this control step's visit: one call per step."""
         x, y, yaw = check_finite("pose", pose, 3)
         gx, gy = check_finite("goal", goal, 2)
         if self.needs_waypoint and waypoint is None:
@@ -323,6 +461,8 @@ class ScanObservation:
         for i, e in enumerate(self.frame_entries):
             if e["name"] == "laser":
                 value = min(ranges[e["beam"]], self.laser_range) * e["scale"]
+            elif e["name"] == "trail":
+                value = 0.0  # below, once every input is checked
             else:
                 value = raw[e["name"]] * e["scale"]
             if e["clip"] is not None:
@@ -335,7 +475,11 @@ class ScanObservation:
                 f"{e['name']}={raw.get(e['name'], values[too_large][0]):g} in the observation: "
                 "beyond float32 (check the units and frame of the pose, goal and waypoint)"
             )
-        return values.astype(np.float32)
+        values = values.astype(np.float32)
+        if self.trail is not None:  # counted last: a refused input leaves the trail as it was
+            self.trail.visit(pose)
+            values[self._trail_slots] = self.trail.reading(pose)
+        return values
 
     def __call__(
         self,
