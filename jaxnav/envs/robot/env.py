@@ -224,6 +224,11 @@ class RobotConfig:
     step_reward_start: float = -0.5
     step_reward_end: float = -1.0
     progress_reward: float = 5.0  # per metre of geodesic progress to the goal; 0 = the paper's
+    # > 0: the progress term as potential-based shaping (Ng et al. 1999) for this discount,
+    # k (d - discount d') a step and k d on the step that ends the episode, so that it changes
+    # no policy's ranking: a search away from the goal is then repaid at its discounted worth
+    # and a crash is no way out of it. 0: k (d - d') every step
+    progress_discount: float = 0.0
     # per step with a wall touching the robot, falling linearly to 0 at ``clearance`` metres of
     # free space around it (the nearest laser reading less the radius); 0 = the paper's
     clearance_reward: float = 0.0
@@ -305,6 +310,12 @@ class RobotConfig:
             raise ValueError(
                 f"goal_range={self.goal_range!r}: must be a positive number of metres "
                 "(0: laser_range)"
+            )
+        v = self.progress_discount
+        if not (v == 0 or (_positive(v) and v <= 1)):
+            raise ValueError(
+                f"progress_discount={self.progress_discount!r}: must be a number in (0, 1] "
+                "(0: the plain progress difference)"
             )
         if not (self.trail_cell == 0 or _positive(self.trail_cell)):
             raise ValueError(
@@ -594,6 +605,7 @@ class RobotParams(EnvParams):
     step_reward_start: float
     step_reward_end: float
     progress_reward: float
+    progress_discount: float
     clearance_reward: float
     clearance: float
     bank: mazes.MazeBank
@@ -782,7 +794,11 @@ class RobotNav(Environment[RobotState, RobotParams]):
         d_before = self.goal_distance(state.pose, state.goal, state.layout, params)
         d_after = self.goal_distance(pose, state.goal, state.layout, params)
         known = (d_before >= 0) & (d_after >= 0)
-        r_progress = jnp.where(known, params.progress_reward * (d_before - d_after), 0.0)
+        if c.progress_discount:  # the end of an episode has potential 0
+            after = jnp.where(at_goal | collided, 0.0, params.progress_discount * d_after)
+            r_progress = jnp.where(known, params.progress_reward * (d_before - after), 0.0)
+        else:
+            r_progress = jnp.where(known, params.progress_reward * (d_before - d_after), 0.0)
         trail = None if state.trail is None else self._visit(state.trail, state.origin, pose)
         frame = self._frame(
             pose, state.goal, state.layout, params, action, radius, trail, state.origin
