@@ -40,6 +40,7 @@ from jaxnav.export import to_trainer
 from jaxnav.train import Trainer
 
 MAZE_FILE = "examples/mazes/corridors_1cell.txt"
+POTENTIAL = {"progress_discount": 0.99}
 # (label, env overrides, training overrides) trained by --train-cpu
 VARIANTS: list[tuple[str, dict[str, Any], dict[str, Any]]] = [
     ("map-free", {}, {}),
@@ -55,6 +56,20 @@ VARIANTS: list[tuple[str, dict[str, Any], dict[str, Any]]] = [
     (
         "map-free, odometry trail, step reward -0.01..-0.02, no clearance term",
         {"trail_cell": 0.5, **GENTLE},
+        {},
+    ),
+    # the geodesic progress term charges 5 a metre of search away from the goal
+    ("map-free, row 10's reward without progress", {**GENTLE, "progress_reward": 0.0}, {}),
+    (
+        "map-free, odometry trail, row 10's reward without progress",
+        {"trail_cell": 0.5, **GENTLE, "progress_reward": 0.0},
+        {},
+    ),
+    # progress as potential-based shaping for the learner's discount (0.99)
+    ("map-free, row 10's reward, potential-based progress", {**GENTLE, **POTENTIAL}, {}),
+    (
+        "map-free, odometry trail, row 10's reward, potential-based progress",
+        {"trail_cell": 0.5, **GENTLE, **POTENTIAL},
         {},
     ),
 ]
