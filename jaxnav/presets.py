@@ -152,8 +152,13 @@ ID_PRESETS: dict[str, dict[str, dict[str, Any]]] = {
         "GridMaze-Random-v0": GRID_RANDOM_PQN,
         "RobotNav-v0": GENERALIST_PQN,
         "RobotJaxNav-v0": GENERALIST_PQN,  # the generalist's sensors, on JaxNav's levels
+        "RobotNavMapfree-v0": GENERALIST_PQN,
     },
-    "ppo": {"RobotNav-v0": GENERALIST_PPO, "RobotJaxNav-v0": GENERALIST_PPO},
+    "ppo": {
+        "RobotNav-v0": GENERALIST_PPO,
+        "RobotJaxNav-v0": GENERALIST_PPO,
+        "RobotNavMapfree-v0": GENERALIST_PPO,
+    },
 }
 # algo -> env id -> preset, for every registered id
 PRESETS: dict[str, dict[str, dict[str, Any]]] = {

@@ -28,6 +28,7 @@ from typing import Any
 from jaxnav.environment import Environment, EnvParams
 from jaxnav.envs import grid_maze
 from jaxnav.envs.robot import env as robot
+from jaxnav.envs.robot import generators
 
 # RobotJaxNav-v0: JaxNav's levels and protocol with the generalist's map-free sensors (the
 # module docstring says how its robot compares with JaxNav's)
@@ -46,6 +47,18 @@ ROBOT_JAXNAV: dict[str, Any] = {
     "backend": "kinematic",
 }
 
+# RobotNavMapfree-v0: the map-free generalist's env (benchmarks/mapfree_sweep.py row 14): the
+# four families and JaxNav's levels in one bank, the map-free sensors with an odometry trail,
+# robots of radius 0.10-0.245 m, JaxNav's goal radius
+ROBOT_NAV_MAPFREE: dict[str, Any] = {
+    **robot.GENERALIST,
+    **robot.MAPFREE_SENSORS,
+    "families": (*generators.FAMILIES, "jaxnav"),
+    "radius_range": (0.1, 0.245),
+    "goal_radius": 0.3,
+    "trail_cell": 0.5,
+}
+
 # id -> (environment class, its default_config(), overrides that define the id)
 _REGISTRY: dict[str, tuple[Callable[..., Environment], Callable[[], Any], dict[str, Any]]] = {
     "GridMaze-v0": (grid_maze.GridMaze, grid_maze.default_config, {}),
@@ -61,6 +74,7 @@ _REGISTRY: dict[str, tuple[Callable[..., Environment], Callable[[], Any], dict[s
     "RobotMaze-v0": (robot.RobotNav, robot.default_config, {"maze": "file"}),
     "RobotNav-v0": (robot.RobotNav, robot.default_config, robot.GENERALIST),
     "RobotJaxNav-v0": (robot.RobotNav, robot.default_config, ROBOT_JAXNAV),
+    "RobotNavMapfree-v0": (robot.RobotNav, robot.default_config, ROBOT_NAV_MAPFREE),
 }
 
 

@@ -213,3 +213,18 @@ def test_help_shows_each_default_once_the_named_presets():
     for argv in (["--env", "x"], ["--env", "--"], ["--algo"]):
         bad = train_parser(argv).format_help()
         assert "Defaults shown: GridMaze-v0" in " ".join(bad.split())
+
+
+def test_the_map_free_generalist_id_is_the_measured_sweep_row():
+    """``RobotNavMapfree-v0`` is row 14 of benchmarks/mapfree_sweep.py (the best map-free row,
+    docs/mapfree.md), env and training preset alike, and needs no waypoint."""
+    from benchmarks import mapfree_sweep
+    from jaxnav.registration import env_config
+
+    _, env_id, env_kwargs, train = mapfree_sweep.ROWS[14]
+    assert "trail" in mapfree_sweep.ROWS[14][0] and train == {}
+    config = env_config("RobotNavMapfree-v0")
+    assert config == env_config(env_id, **env_kwargs)
+    assert config.waypoint_distance == 0 and not config.obs_absolute and config.trail_cell > 0
+    for algo in ("pqn", "ppo"):
+        assert train_defaults("RobotNavMapfree-v0", algo) == train_defaults(env_id, algo)
