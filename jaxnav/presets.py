@@ -13,7 +13,7 @@ from typing import Any
 
 from jaxnav.registration import env_family, registered_envs
 
-# DQN on the robot envs, chosen by measurement (benchmarks/results/robot_sweeps/): 3-step
+# DQN on the robot envs, chosen by measurement (benchmarks/results/robot_sweeps.md): 3-step
 # returns and gamma 0.95 (1-step returns with the grid's gamma 0.9 plateau near 0.86 success on
 # RobotSimple-v0), and a longer run, since paths take ~40 control steps rather than ~10 cells.
 # 64 envs with batch 512 keep the replay ratio of 16 envs with batch 128 (8 sampled transitions

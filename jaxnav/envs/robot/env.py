@@ -15,7 +15,7 @@ negative when it moves away). Goal and collision terminate; ``max_steps`` (250) 
 term is in ``info`` (``reward_goal``, ``reward_collision``, ``reward_step``, ``reward_progress``).
 Why the progress term: with the paper's terms alone, 250 steps of -0.5..-1 cost far more than
 one crash (-5), and a DQN learns to crash at once (0.5% success, 99% collisions over 3 seeds,
-``benchmarks/results/robot_sweeps/robot_sweep1.md``); ``progress_reward=0`` restores the
+``benchmarks/results/robot_sweeps.md``, sweep 1); ``progress_reward=0`` restores the
 paper's reward.
 
 Observation: the last ``frames`` (4) sets, oldest first, of (7 lasers / (10 sqrt 2), goal x,
@@ -23,7 +23,7 @@ goal y, robot x, robot y) (the paper's), positions divided by the arena size, th
 ``obs_proximity`` the distance D to the goal / (10 sqrt 2) (Table I), ``obs_goal_bearing`` the
 goal's direction relative to the heading as (sin, cos), ``obs_heading`` the heading (sin, cos).
 D and the bearing are on by default: with them the DQN reaches 0.96 success on RobotSimple-v0,
-without them it learns far slower (``benchmarks/results/robot_sweeps/robot_sweep3.md``).
+without them it learns far slower (``benchmarks/results/robot_sweeps.md``, sweep 3).
 ``PAPER_SETUP`` holds the overrides for the paper's literal speed, reward and observation.
 
 With ``obs_absolute=False`` the frame leaves out goal (x, y) and robot (x, y), arena
@@ -510,7 +510,7 @@ def default_config() -> RobotConfig:
 
 # The paper's literal setup (its speed is not stated; "increased to the maximum possible value"),
 # as overrides: ``jaxnav.make("RobotSimple-v0", **PAPER_SETUP)``. A DQN learns to end episodes by
-# crashing there (benchmarks/results/robot_sweeps/robot_sweep1.md): why the defaults differ.
+# crashing there (benchmarks/results/robot_sweeps.md, sweep 1): why the defaults differ.
 PAPER_SETUP: dict[str, Any] = {
     "speed": 1.0,
     "turn_speed": 2.0,
