@@ -794,11 +794,10 @@ class RobotNav(Environment[RobotState, RobotParams]):
         d_before = self.goal_distance(state.pose, state.goal, state.layout, params)
         d_after = self.goal_distance(pose, state.goal, state.layout, params)
         known = (d_before >= 0) & (d_after >= 0)
+        after = d_after
         if c.progress_discount:  # the end of an episode has potential 0
             after = jnp.where(at_goal | collided, 0.0, params.progress_discount * d_after)
-            r_progress = jnp.where(known, params.progress_reward * (d_before - after), 0.0)
-        else:
-            r_progress = jnp.where(known, params.progress_reward * (d_before - d_after), 0.0)
+        r_progress = jnp.where(known, params.progress_reward * (d_before - after), 0.0)
         trail = None if state.trail is None else self._visit(state.trail, state.origin, pose)
         frame = self._frame(
             pose, state.goal, state.layout, params, action, radius, trail, state.origin
