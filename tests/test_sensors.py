@@ -452,3 +452,16 @@ def test_a_policy_exported_with_the_trail_runs_from_its_file(trail_robot, tmp_pa
     assert kwargs["trail_cell"] == 0.5
     with pytest.raises(ValueError, match=r"--env-arg trail_cell=0: .* with trail_cell=0.5"):
         export.env_for(policy, "RobotComplex-v0", {"trail_cell": 0})
+
+
+def test_the_numpy_trail_constants_are_the_simulators():
+    """``jaxnav.deploy.sensors`` writes the trail's constants out (it imports no JAX): they
+    must stay the simulator's."""
+    from jaxnav.deploy import sensors
+    from jaxnav.envs.robot import layout
+
+    assert sensors.TRAIL_ANGLES == tuple(float(a) for a in layout.TRAIL_ANGLES)
+    assert (sensors.TRAIL_CELLS, sensors.TRAIL_SATURATION) == (
+        layout.TRAIL_CELLS,
+        layout.TRAIL_SATURATION,
+    )
