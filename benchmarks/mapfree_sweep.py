@@ -2,14 +2,16 @@
 each trained once and tested greedily on held-out mazes (each family apart), the paper's mazes,
 the maze files and, where the env exists, JaxNav-style levels at JaxNav's robot size.
 
-    python -m benchmarks.mapfree_sweep [--rows 0,1] [--episodes 2000] \
-        [--out benchmarks/results/mapfree_sweep.jsonl] [--policies DIR]
+    python -m benchmarks.mapfree_sweep [--rows 0,1] [--episodes 2000] [--seeds 0,1,2] \
+        [--out benchmarks/results/mapfree_sweep.jsonl] [--policies DIR] [--trained DIR]
 
 Every row is ``TrainConfig.for_env(env, algo="pqn")`` with the row's env and training
-overrides, seed 0 (``jax.random.split(key(0), 1)``), ``eval_episodes`` 0. "Map-free" means
+overrides, seed s (``jax.random.split(key(s), 1)``; ``--seeds``, default 0, are trained
+together under ``vmap``), ``eval_episodes`` 0. "Map-free" means
 ``waypoint_distance=0``: the observation is the lidar, the goal's distance and bearing and,
 with the row's options, the robot's previous action and radius; no waypoint, no map, no arena
-coordinates. One JSON line per row (appended to ``--out``) and a markdown table beside it.
+coordinates. One JSON line per row and seed (appended to ``--out``) and a markdown table
+beside it, with the mean and spread over seeds of rows tested with several.
 """
 
 from __future__ import annotations
@@ -55,6 +57,8 @@ MIXED_GOAL = {**MIXED, "radius_range": (0.1, 0.245), "goal_radius": 0.3}
 # a step penalty a tenth of the generalist's and no clearance term: a long search for the goal
 # then costs less than a crash (-10), so a policy unsure of its way has no reason to crash
 GENTLE = {"step_reward_start": -0.01, "step_reward_end": -0.02, "clearance_reward": 0.0}
+# the progress term as potential-based shaping for the preset's discount (0.99)
+POTENTIAL = {"progress_discount": 0.99}
 # radii the held-out mazes are tested at when a row draws the robot's size
 HELD_OUT_RADII = (0.1, 0.15, 0.2)
 
@@ -119,6 +123,21 @@ ROWS: list[tuple[str, str, dict[str, Any], dict[str, Any]]] = [
         {**ODOMETRY, "frames": 8, **MIXED_GOAL, "trail_cell": 0.5},
         {"curriculum": "learnability"},
     ),
+    # the discounted step costs stay under a crash's, and the progress term is potential-based
+    # with a crash keeping its distance: no reward term makes a crash pay
+    (
+        "row 14, crashes never pay: row 10's reward, potential-based progress",
+        "RobotNav-v0",
+        {**ODOMETRY, "frames": 8, **MIXED_GOAL, "trail_cell": 0.5, **GENTLE, **POTENTIAL},
+        {},
+    ),
+    # the waypoint policy's last failures are forward/back loops: the trail sees them
+    (
+        "row 11 + odometry trail of 0.5 m cells",
+        "RobotNav-v0",
+        {**MIXED_GOAL, "trail_cell": 0.5},
+        {},
+    ),
 ]
 
 
@@ -158,54 +177,77 @@ def row_config(index: int) -> TrainConfig:
 
 
 def run_row(
-    index: int, episodes: int, policies: Path | None = None, trained: Path | None = None
-) -> dict[str, Any]:
-    """Train row ``index`` (or, with ``trained``, load its exported ``rowN.npz`` from that
-    folder: no training time then) and test it."""
+    index: int,
+    episodes: int,
+    policies: Path | None = None,
+    trained: Path | None = None,
+    seeds: tuple[int, ...] = (0,),
+) -> list[dict[str, Any]]:
+    """Train row ``index`` once per seed, the seeds vmapped together (or, with ``trained``,
+    load its exported ``rowN.npz`` from that folder: no training time then) and test each
+    policy; one result a seed. Seed s trains with ``jax.random.split(key(s), 1)``."""
     label, env_id, env_kwargs, overrides = ROWS[index]
     config = row_config(index)
     if trained is None:
-        trainer, state, timing = train_one(config, jax.random.split(jax.random.key(0), 1))
-        policy = trainer.greedy_policy(state.params)
+        keys = jax.numpy.concatenate([jax.random.split(jax.random.key(s), 1) for s in seeds])
+        trainer, states, timing = train_one(config, keys)
+        params = [jax.tree.map(lambda x, i=i: x[i], states.params) for i in range(len(seeds))]
+        timing["seeds_trained_together"] = len(seeds)
     else:  # the policy's own float32 network, as jaxnav.evaluate runs an exported policy
-        trainer, params = export.to_trainer(Policy.load(trained / f"row{index}.npz"))
-        policy = trainer.greedy_policy(jax.tree.map(lambda x: x[0], params))
+        seeds = (0,)
+        trainer, loaded = export.to_trainer(Policy.load(trained / f"row{index}.npz"))
+        params = [jax.tree.map(lambda x: x[0], loaded)]
         timing = {"train_s": None, "env_steps": config.total_timesteps, "tested": "exported npz"}
-    row: dict[str, Any] = {
-        "row": index,
-        "label": label,
-        "env": env_id,
-        "env_kwargs": env_kwargs,
-        "train": overrides,
-        **timing,
-        "episodes": episodes,
-        "tests": {},
-    }
-    if policies is not None and trained is None:  # the row's policy as an exported npz
+    rows = [
+        {
+            "row": index,
+            "seed": seed,
+            "label": label,
+            "env": env_id,
+            "env_kwargs": env_kwargs,
+            "train": overrides,
+            **timing,
+            "episodes": episodes,
+            "tests": {},
+        }
+        for seed in seeds
+    ]
+    if policies is not None and trained is None:  # each seed's policy as an exported npz
         metadata = export.policy_metadata(trainer, {"benchmark": f"mapfree_sweep row {index}"})
-        arrays = export.policy_arrays(trainer.network, state.params)
-        export.write_policy(arrays, metadata, policies / f"row{index}.npz", "npz")
+        for seed, p in zip(seeds, params, strict=True):
+            name = f"row{index}.npz" if seed == 0 else f"row{index}_seed{seed}.npz"
+            arrays = export.policy_arrays(trainer.network, p)
+            export.write_policy(arrays, metadata | {"seed": seed}, policies / name, "npz")
     for family in families(config):
         env_name, kwargs = family.for_run(config)
-        env, params = jaxnav.make(env_name, **kwargs)
-        out = run_episodes(
-            env, params, policy, jax.random.key(TEST_KEY), episodes, params.max_steps_in_episode
+        env, env_params = jaxnav.make(env_name, **kwargs)
+        test = jax.jit(  # compiled once a suite, run once a seed
+            lambda p, env=env, env_params=env_params: run_episodes(
+                env,
+                env_params,
+                trainer.greedy_policy(p),
+                jax.random.key(TEST_KEY),
+                episodes,
+                env_params.max_steps_in_episode,
+            )
         )
-        row["tests"][family.name] = outcome(out)
-        if family.name == "held-out" and env.config.maze == "families":
-            names = env.config.families
-            layout = np.asarray(out["layout"]) % len(names)
-            for i, name in enumerate(names):
-                row["tests"][f"held-out {name}"] = outcome(out, layout == i)
-        print(f"  {family.name}: {row['tests'][family.name]}", flush=True)
-    return row
+        for row, p in zip(rows, params, strict=True):
+            out = test(p)
+            row["tests"][family.name] = outcome(out)
+            if family.name == "held-out" and env.config.maze == "families":
+                names = env.config.families
+                layout = np.asarray(out["layout"]) % len(names)
+                for i, name in enumerate(names):
+                    row["tests"][f"held-out {name}"] = outcome(out, layout == i)
+        print(f"  {family.name}: {[r['tests'][family.name]['success'] for r in rows]}", flush=True)
+    return rows
 
 
 def markdown(rows: list[dict[str, Any]]) -> str:
     names = list(dict.fromkeys(name for r in rows for name in r["tests"]))
-    head = "| row | setting | train s | env steps | episodes | " + " | ".join(names) + " |"
-    lines = [head, "|" + "---|" * (5 + len(names))]
-    for r in sorted(rows, key=lambda r: r["row"]):
+    head = "| row | seed | setting | train s | env steps | episodes | " + " | ".join(names) + " |"
+    lines = [head, "|" + "---|" * (6 + len(names))]
+    for r in sorted(rows, key=lambda r: (r["row"], r.get("seed", 0))):
         tests = r["tests"]
         train_s = "n/a" if r["train_s"] is None else f"{r['train_s']:.1f}"
         cells = [
@@ -213,15 +255,42 @@ def markdown(rows: list[dict[str, Any]]) -> str:
             for n in names
         ]
         lines.append(
-            f"| {r['row']} | {r['label']} | {train_s} | {r['env_steps']:,} | "
-            f"{r['episodes']} | " + " | ".join(cells) + " |"
+            f"| {r['row']} | {r.get('seed', 0)} | {r['label']} | {train_s} | "
+            f"{r['env_steps']:,} | {r['episodes']} | " + " | ".join(cells) + " |"
         )
-    return "\n".join(lines) + (
+    text = "\n".join(lines) + (
         "\n\nCells: greedy success / collision rate over a row's episodes per cell "
         f"(test key {TEST_KEY}, mazes round-robin; held-out: maze_seed {HELD_OUT_MAZE_SEED}, "
-        f"1,000 mazes, families {', '.join(generators.FAMILIES)} in turn). One training seed "
-        "a row.\n"
+        f"1,000 mazes, families {', '.join(generators.FAMILIES)} in turn). Train s: of all the "
+        "seeds trained together with it (vmapped).\n"
     )
+    return text + over_seeds(rows)
+
+
+def over_seeds(rows: list[dict[str, Any]]) -> str:
+    """Mean and standard deviation of success over the seeds of each row tested with more
+    than one (the latest result of each seed)."""
+    latest = {(r["row"], r.get("seed", 0)): r for r in rows}
+    by_row: dict[int, list[dict[str, Any]]] = {}
+    for (row, _), r in sorted(latest.items()):
+        by_row.setdefault(row, []).append(r)
+    by_row = {row: rs for row, rs in by_row.items() if len(rs) > 1}
+    if not by_row:
+        return ""
+    names = list(dict.fromkeys(n for rs in by_row.values() for r in rs for n in r["tests"]))
+    lines = [
+        "\n## Over seeds\n",
+        "| row | seeds | " + " | ".join(names) + " |",
+        "|" + "---|" * (2 + len(names)),
+    ]
+    for row, rs in by_row.items():
+        cells = []
+        for n in names:
+            x = np.array([r["tests"][n]["success"] for r in rs if n in r["tests"]])
+            cells.append(f"{x.mean():.3f} ± {x.std(ddof=1):.3f}" if len(x) > 1 else "n/a")
+        seeds = ", ".join(str(r.get("seed", 0)) for r in rs)
+        lines.append(f"| {row} | {seeds} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n\nCells: mean ± standard deviation of greedy success.\n"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -231,6 +300,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", type=Path, default=Path("benchmarks/results/mapfree_sweep.jsonl"))
     p.add_argument("--policies", type=Path, help="folder to write each row's policy (rowN.npz)")
     p.add_argument("--trained", type=Path, help="test each row's rowN.npz from this folder")
+    p.add_argument("--seeds", default="0", help="training seeds, vmapped together: 0,1,2")
     p.add_argument("--render", action="store_true", help="only rebuild the table from --out")
     args = p.parse_args(argv)
     if args.render:
@@ -244,16 +314,24 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError:
         print(f"--rows {args.rows!r}: give indices in 0..{len(ROWS) - 1}", file=sys.stderr)
         return 2
+    try:
+        seeds = tuple(int(s) for s in args.seeds.split(","))
+        if not seeds or min(seeds) < 0 or len(set(seeds)) < len(seeds):
+            raise ValueError
+    except ValueError:
+        print(f"--seeds {args.seeds!r}: give distinct seeds >= 0, e.g. 0,1,2", file=sys.stderr)
+        return 2
     machine = machine_info()
     rows = []
     for i in indices:
         print(f"row {i}: {ROWS[i][0]}", flush=True)
-        row = run_row(i, args.episodes, args.policies, args.trained) | {"machine": machine}
-        rows.append(row)
+        results = run_row(i, args.episodes, args.policies, args.trained, seeds)
+        results = [r | {"machine": machine} for r in results]
+        rows += results
         args.out.parent.mkdir(parents=True, exist_ok=True)
         with args.out.open("a") as f:
-            f.write(json.dumps(row) + "\n")
-        print(f"  {row['env_steps']:,} steps, trained in {row['train_s']} s", flush=True)
+            f.writelines(json.dumps(r) + "\n" for r in results)
+        print(f"  {results[0]['env_steps']:,} steps a seed, {results[0]['train_s']} s", flush=True)
     args.out.with_suffix(".md").write_text(markdown(rows))
     print(markdown(rows))
     return 0

@@ -6,6 +6,7 @@ import json
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 ROOT = str(Path(__file__).resolve().parents[1])  # `benchmarks` is not installed; plain `pytest`
@@ -335,5 +336,50 @@ def test_mapfree_sweep_tests_an_exported_row_without_training(tmp_path: Path, mo
     row = json.loads(out.read_text())
     assert row["row"] == 11 and row["train_s"] is None and row["tested"] == "exported npz"
     assert set(row["tests"]) >= {"held-out"} and 0.0 <= row["tests"]["held-out"]["success"] <= 1
-    assert "| 11 | row 5 at goal radius 0.3 m" in out.with_suffix(".md").read_text()
+    assert "| 11 | 0 | row 5 at goal radius 0.3 m" in out.with_suffix(".md").read_text()
     assert "| n/a |" in out.with_suffix(".md").read_text()
+
+
+def test_mapfree_sweep_trains_seeds_together_and_reports_their_spread(
+    tmp_path: Path, monkeypatch
+) -> None:
+    from benchmarks import mapfree_sweep
+    from jaxnav.config import TrainConfig
+    from jaxnav.deploy.policy import Policy
+    from jaxnav.experiments import Family
+
+    assert mapfree_sweep.main(["--seeds", "1,1"]) == 2  # a seed twice
+    assert mapfree_sweep.main(["--seeds", "-1"]) == 2
+    _, env_id, env_kwargs, _ = mapfree_sweep.ROWS[14]
+    tiny = TrainConfig.for_env(
+        env_id,
+        algo="pqn",
+        env_kwargs={**env_kwargs, "num_layouts": 8, "backend": "kinematic"},
+        eval_episodes=0,
+        num_envs=8,
+        rollout_length=4,
+        num_minibatches=1,
+        num_epochs=1,
+        total_timesteps=64,
+        hidden_sizes=(16,),
+        compute_dtype="float32",
+        fused_layer_norm=False,
+        log_interval=32,
+    )
+    monkeypatch.setattr(mapfree_sweep, "row_config", lambda index: tiny)
+    suite = Family("held-out", "own", {"maze_seed": 1_000_003, "num_layouts": 4})
+    monkeypatch.setattr(mapfree_sweep, "families", lambda config: [suite])
+    out, policies = tmp_path / "sweep.jsonl", tmp_path / "pol"
+    policies.mkdir()
+    argv = ["--rows", "14", "--seeds", "0,3", "--episodes", "4", "--out", str(out)]
+    assert mapfree_sweep.main([*argv, "--policies", str(policies)]) == 0
+    rows = [json.loads(line) for line in out.read_text().splitlines()]
+    assert [(r["row"], r["seed"], r["seeds_trained_together"]) for r in rows] == [
+        (14, 0, 2),
+        (14, 3, 2),
+    ]
+    # each seed's own policy: the two runs differ
+    a, b = (Policy.load(policies / n) for n in ("row14.npz", "row14_seed3.npz"))
+    assert any(not np.array_equal(a.arrays[k], b.arrays[k]) for k in a.arrays)
+    text = out.with_suffix(".md").read_text()
+    assert "## Over seeds" in text and "| 14 | 0, 3 | " in text

@@ -643,10 +643,10 @@ def test_a_bad_trail_cell_is_refused_in_one_line(bad):
     assert "\n" not in str(e.value)
 
 
-def test_potential_based_progress_discounts_the_next_distance_and_zeroes_the_end():
+def test_potential_based_progress_discounts_the_next_distance_and_a_crash_refunds_nothing():
     """``progress_discount`` g: the progress term is k (d - g d') a step (Ng et al.'s shaping
-    for potential -k d) and k d on a step that ends the episode (the end's potential is 0), so
-    a crash refunds the distance still to go instead of keeping it as a loss."""
+    for potential -k d), also on a crash: a crash keeps the distance still to go as a loss
+    instead of refunding it, so crashing is never a way out of a search."""
     env, params = jaxnav.make("RobotSimple-v0", backend="kinematic", progress_discount=0.9)
     step_env = jax.jit(env.step_env)
     k = env.config.progress_reward
@@ -658,8 +658,10 @@ def test_potential_based_progress_discounts_the_next_distance_and_zeroes_the_end
     assert float(info["reward_progress"]) == pytest.approx(k * (d - 0.9 * d1))
     _, s = start(env, params, 1.5, 0.26, -math.pi / 2, goal=(8.5, 5.5))  # facing the wall
     d = float(env.goal_distance(s.pose, s.goal, s.layout, params))
-    _, _, _, term, info = step_env(KEY, s, FORWARD, params)
-    assert bool(info["collision"]) and float(info["reward_progress"]) == pytest.approx(k * d)
+    _, s1, _, term, info = step_env(KEY, s, FORWARD, params)
+    d1 = float(env.goal_distance(s1.pose, s.goal, s.layout, params))
+    assert bool(info["collision"]) and d1 > 1.0
+    assert float(info["reward_progress"]) == pytest.approx(k * (d - 0.9 * d1))
     for bad in (-0.5, 1.5, float("nan"), "0.9", True):
         with pytest.raises(ValueError, match=r"^progress_discount="):
             jaxnav.make("RobotSimple-v0", progress_discount=bad)

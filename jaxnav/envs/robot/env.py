@@ -225,9 +225,9 @@ class RobotConfig:
     step_reward_end: float = -1.0
     progress_reward: float = 5.0  # per metre of geodesic progress to the goal; 0 = the paper's
     # > 0: the progress term as potential-based shaping (Ng et al. 1999) for this discount,
-    # k (d - discount d') a step and k d on the step that ends the episode, so that it changes
-    # no policy's ranking: a search away from the goal is then repaid at its discounted worth
-    # and a crash is no way out of it. 0: k (d - d') every step
+    # k (d - discount d') a step and k d on reaching the goal: a search away from the goal is
+    # repaid at its discounted worth. A crash keeps its potential (-k d'), so it never refunds
+    # the distance still to go. 0: k (d - d') every step
     progress_discount: float = 0.0
     # per step with a wall touching the robot, falling linearly to 0 at ``clearance`` metres of
     # free space around it (the nearest laser reading less the radius); 0 = the paper's
@@ -795,8 +795,8 @@ class RobotNav(Environment[RobotState, RobotParams]):
         d_after = self.goal_distance(pose, state.goal, state.layout, params)
         known = (d_before >= 0) & (d_after >= 0)
         after = d_after
-        if c.progress_discount:  # the end of an episode has potential 0
-            after = jnp.where(at_goal | collided, 0.0, params.progress_discount * d_after)
+        if c.progress_discount:  # the goal has potential 0; a crash keeps the distance left
+            after = jnp.where(at_goal, 0.0, params.progress_discount * d_after)
         r_progress = jnp.where(known, params.progress_reward * (d_before - after), 0.0)
         trail = None if state.trail is None else self._visit(state.trail, state.origin, pose)
         frame = self._frame(
