@@ -29,7 +29,7 @@ import jax
 import numpy as np
 
 from benchmarks.common import machine_info
-from benchmarks.mapfree_sweep import GENTLE, outcome
+from benchmarks.mapfree_sweep import GENTLE, POTENTIAL, outcome
 from jaxnav.config import TrainConfig
 from jaxnav.deploy.policy import Policy
 from jaxnav.envs.maze_algorithms import narrowest_gap
@@ -40,7 +40,6 @@ from jaxnav.export import to_trainer
 from jaxnav.train import Trainer
 
 MAZE_FILE = "examples/mazes/corridors_1cell.txt"
-POTENTIAL = {"progress_discount": 0.99}
 # (label, env overrides, training overrides) trained by --train-cpu
 VARIANTS: list[tuple[str, dict[str, Any], dict[str, Any]]] = [
     ("map-free", {}, {}),
@@ -65,10 +64,15 @@ VARIANTS: list[tuple[str, dict[str, Any], dict[str, Any]]] = [
         {"trail_cell": 0.5, **GENTLE, "progress_reward": 0.0},
         {},
     ),
-    # progress as potential-based shaping for the learner's discount (0.99)
-    ("map-free, row 10's reward, potential-based progress", {**GENTLE, **POTENTIAL}, {}),
+    # progress as potential-based shaping for the learner's discount (0.99); a crash keeps its
+    # potential, so it refunds nothing
     (
-        "map-free, odometry trail, row 10's reward, potential-based progress",
+        "map-free, row 10's reward, potential-based progress, crash kept",
+        {**GENTLE, **POTENTIAL},
+        {},
+    ),
+    (
+        "map-free, odometry trail, row 10's reward, potential-based progress, crash kept",
         {"trail_cell": 0.5, **GENTLE, **POTENTIAL},
         {},
     ),
