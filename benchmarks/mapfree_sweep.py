@@ -32,7 +32,7 @@ from jaxnav import export
 from jaxnav.config import TrainConfig
 from jaxnav.deploy.policy import Policy
 from jaxnav.envs.robot import generators
-from jaxnav.evaluate import run_episodes
+from jaxnav.evaluate import run_episodes, shielded_policy
 from jaxnav.experiments import HELD_OUT_MAZE_SEED, Family, default_families
 from jaxnav.presets import GENERALIST_PQN
 from jaxnav.registration import registered_envs
@@ -182,10 +182,12 @@ def run_row(
     policies: Path | None = None,
     trained: Path | None = None,
     seeds: tuple[int, ...] = (0,),
+    shielded: bool = False,
 ) -> list[dict[str, Any]]:
     """Train row ``index`` once per seed, the seeds vmapped together (or, with ``trained``,
     load its exported ``rowN.npz`` from that folder: no training time then) and test each
-    policy; one result a seed. Seed s trains with ``jax.random.split(key(s), 1)``."""
+    policy, greedy or ``shielded`` (``jaxnav.evaluate.shielded_policy``); one result a seed.
+    Seed s trains with ``jax.random.split(key(s), 1)``."""
     label, env_id, env_kwargs, overrides = ROWS[index]
     config = row_config(index)
     if trained is None:
@@ -207,6 +209,7 @@ def run_row(
             "env_kwargs": env_kwargs,
             "train": overrides,
             **timing,
+            "policy": "shielded" if shielded else "greedy",
             "episodes": episodes,
             "tests": {},
         }
@@ -221,11 +224,14 @@ def run_row(
     for family in families(config):
         env_name, kwargs = family.for_run(config)
         env, env_params = jaxnav.make(env_name, **kwargs)
+        policy_of = (
+            shielded_policy(trainer.network, env, env_params) if shielded else trainer.greedy_policy
+        )
         test = jax.jit(  # compiled once a suite, run once a seed
-            lambda p, env=env, env_params=env_params: run_episodes(
+            lambda p, env=env, env_params=env_params, policy_of=policy_of: run_episodes(
                 env,
                 env_params,
-                trainer.greedy_policy(p),
+                policy_of(p),
                 jax.random.key(TEST_KEY),
                 episodes,
                 env_params.max_steps_in_episode,
@@ -247,7 +253,7 @@ def markdown(rows: list[dict[str, Any]]) -> str:
     names = list(dict.fromkeys(name for r in rows for name in r["tests"]))
     head = "| row | seed | setting | train s | env steps | episodes | " + " | ".join(names) + " |"
     lines = [head, "|" + "---|" * (6 + len(names))]
-    for r in sorted(rows, key=lambda r: (r["row"], r.get("seed", 0))):
+    for r in sorted(rows, key=lambda r: (r["row"], shielded(r), r.get("seed", 0))):
         tests = r["tests"]
         train_s = "n/a" if r["train_s"] is None else f"{r['train_s']:.1f}"
         cells = [
@@ -255,7 +261,7 @@ def markdown(rows: list[dict[str, Any]]) -> str:
             for n in names
         ]
         lines.append(
-            f"| {r['row']} | {r.get('seed', 0)} | {r['label']} | {train_s} | "
+            f"| {r['row']} | {r.get('seed', 0)} | {r['label']}{shielded(r)} | {train_s} | "
             f"{r['env_steps']:,} | {r['episodes']} | " + " | ".join(cells) + " |"
         )
     text = "\n".join(lines) + (
@@ -267,13 +273,18 @@ def markdown(rows: list[dict[str, Any]]) -> str:
     return text + over_seeds(rows)
 
 
+def shielded(row: dict[str, Any]) -> str:
+    """What a table adds to the label of a row tested through the collision monitor."""
+    return ", shielded" if row.get("policy") == "shielded" else ""
+
+
 def over_seeds(rows: list[dict[str, Any]]) -> str:
-    """Mean and standard deviation of success over the seeds of each row tested with more
-    than one (the latest result of each seed)."""
-    latest = {(r["row"], r.get("seed", 0)): r for r in rows}
-    by_row: dict[int, list[dict[str, Any]]] = {}
-    for (row, _), r in sorted(latest.items()):
-        by_row.setdefault(row, []).append(r)
+    """Mean and standard deviation of success over the seeds of each row (and policy) tested
+    with more than one (the latest result of each seed)."""
+    latest = {(r["row"], shielded(r), r.get("seed", 0)): r for r in rows}
+    by_row: dict[str, list[dict[str, Any]]] = {}
+    for (row, policy, _), r in sorted(latest.items()):
+        by_row.setdefault(f"{row}{policy}", []).append(r)
     by_row = {row: rs for row, rs in by_row.items() if len(rs) > 1}
     if not by_row:
         return ""
@@ -301,6 +312,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--policies", type=Path, help="folder to write each row's policy (rowN.npz)")
     p.add_argument("--trained", type=Path, help="test each row's rowN.npz from this folder")
     p.add_argument("--seeds", default="0", help="training seeds, vmapped together: 0,1,2")
+    p.add_argument(
+        "--shielded", action="store_true", help="test through the lidar collision monitor"
+    )
     p.add_argument("--render", action="store_true", help="only rebuild the table from --out")
     args = p.parse_args(argv)
     if args.render:
@@ -325,7 +339,7 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     for i in indices:
         print(f"row {i}: {ROWS[i][0]}", flush=True)
-        results = run_row(i, args.episodes, args.policies, args.trained, seeds)
+        results = run_row(i, args.episodes, args.policies, args.trained, seeds, args.shielded)
         results = [r | {"machine": machine} for r in results]
         rows += results
         args.out.parent.mkdir(parents=True, exist_ok=True)

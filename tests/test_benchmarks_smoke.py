@@ -326,17 +326,23 @@ def test_mapfree_sweep_tests_an_exported_row_without_training(tmp_path: Path, mo
     from jaxnav import pretrained
     from jaxnav.experiments import Family
 
-    # robotnav-sizes is row 11's policy; one small suite keeps the test short
-    (tmp_path / "row11.npz").write_bytes(pretrained.path("robotnav-sizes").read_bytes())
+    # robotnav-sizes is row 17's policy; one small suite keeps the test short
+    (tmp_path / "row17.npz").write_bytes(pretrained.path("robotnav-sizes").read_bytes())
     suite = Family("held-out", "own", {"maze_seed": 1_000_003, "num_layouts": 4})
     monkeypatch.setattr(mapfree_sweep, "families", lambda config: [suite])
     out = tmp_path / "sweep.jsonl"
-    argv = ["--rows", "11", "--episodes", "4", "--trained", str(tmp_path), "--out", str(out)]
+    argv = ["--rows", "17", "--episodes", "4", "--trained", str(tmp_path), "--out", str(out)]
     assert mapfree_sweep.main(argv) == 0
-    row = json.loads(out.read_text())
-    assert row["row"] == 11 and row["train_s"] is None and row["tested"] == "exported npz"
-    assert set(row["tests"]) >= {"held-out"} and 0.0 <= row["tests"]["held-out"]["success"] <= 1
-    assert "| 11 | 0 | row 5 at goal radius 0.3 m" in out.with_suffix(".md").read_text()
+    assert mapfree_sweep.main([*argv, "--shielded"]) == 0
+    greedy, shielded = (json.loads(line) for line in out.read_text().splitlines())
+    assert greedy["row"] == 17 and greedy["train_s"] is None and greedy["tested"] == "exported npz"
+    assert (greedy["policy"], shielded["policy"]) == ("greedy", "shielded")
+    for row in (greedy, shielded):
+        assert set(row["tests"]) >= {"held-out"}
+        assert 0.0 <= row["tests"]["held-out"]["success"] <= 1
+    assert "| 17 | 0 | row 11 + odometry trail of 0.5 m cells, shielded |" in (
+        out.with_suffix(".md").read_text()
+    )
     assert "| n/a |" in out.with_suffix(".md").read_text()
 
 

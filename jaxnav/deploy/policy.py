@@ -37,6 +37,8 @@ from typing import Any
 
 import numpy as np
 
+from jaxnav.deploy.shield import Shield
+
 FORMAT = "jaxnav-policy"
 FORMAT_VERSION = 2  # 2: a network with memory (feed-forward ones are still written as 1)
 # the GRU cell's weights by gate: whether it has a bias (flax's GRUCell, input then state)
@@ -328,13 +330,18 @@ class Policy:
         """The Q-values of ``obs``, with memory read with the current state (not advanced)."""
         return forward(self.arrays, self.network, obs, self.hidden)
 
-    def act(self, obs: np.ndarray) -> Any:
+    def act(self, obs: np.ndarray, shielded: bool = False) -> Any:
         """The greedy action: the first of the largest Q-values, as ``jnp.argmax`` picks; with
-        memory the state advances to the one after ``obs``."""
+        memory the state advances to the one after ``obs``. ``shielded``: among the moves the
+        robot's lidar does not show blocked over the next step (``jaxnav.deploy.shield``;
+        robot policies only, ``ValueError`` otherwise)."""
         q, hidden = step(self.arrays, self.network, obs, self.hidden)
         if self.memory:
             self.hidden = hidden
-        action = np.argmax(q, axis=-1)
+        if shielded:
+            action = Shield.from_metadata(self.metadata).act(q, np.asarray(obs, np.float32))
+        else:
+            action = np.argmax(q, axis=-1)
         return int(action) if action.ndim == 0 else action
 
 

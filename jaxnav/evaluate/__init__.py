@@ -12,6 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxnav.agents.dqn import RecurrentPolicy
+from jaxnav.deploy.shield import Shield
 from jaxnav.environment import Environment, EnvParams
 
 if TYPE_CHECKING:
@@ -32,6 +33,22 @@ def recurrent(policy: Policy) -> RecurrentPolicy:
 def random_policy(num_actions: int) -> Policy:
     """The paper's random agent: a uniform action every step."""
     return lambda key, obs: jax.random.randint(key, obs.shape[:1], 0, num_actions)
+
+
+def shielded_policy(network: Any, env: Environment, env_params: Any) -> Callable[[Any], Policy]:
+    """params -> the greedy policy of ``network`` on ``env`` among the moves the robot's own
+    lidar does not show blocked over the next step (``jaxnav.deploy.shield``); ``ValueError``
+    (one line) for a network with memory or an env without lidar."""
+    net = network
+    if net.memory:
+        raise ValueError("--policy shielded: for feed-forward policies (this one has memory)")
+    try:
+        shield = Shield.from_layouts(
+            env.observation_layout(env_params), env.action_layout(), env.sensor_layout()
+        )
+    except ValueError as e:
+        raise ValueError(f"--policy shielded: {e}") from None
+    return lambda p: lambda key, obs: shield.act(net.apply(p, obs), obs, jnp)
 
 
 def layout_assignment(num_episodes: int, num_layouts: int) -> np.ndarray:
@@ -240,15 +257,22 @@ def evaluate_seeds(
     policy: str = "trained",
     per_maze: bool = False,
 ) -> list[dict[str, Any]]:
-    """Greedy (or random) evaluation of each seed's parameters on the same fresh episodes
-    (layouts round-robin, ``run_episodes``); ``per_maze`` adds each seed's per-maze success
-    rates (``maze_success``) as the list ``"maze_success"``."""
+    """Greedy (``policy`` "trained"), shielded (``shielded_policy``) or random evaluation of
+    each seed's parameters on the same fresh episodes (layouts round-robin, ``run_episodes``);
+    ``per_maze`` adds each seed's per-maze success rates (``maze_success``) as the list
+    ``"maze_success"``."""
     env, env_params = trainer.env, trainer.env_params
     key = jax.random.key(seed)
     max_steps = int(env_params.max_steps_in_episode)
 
+    if policy == "shielded":
+        shielded = shielded_policy(trainer.network, env, env_params)
+
     def one(p):
-        pol = trainer.greedy_policy(p) if policy == "trained" else random_policy(env.num_actions)
+        if policy == "random":
+            pol = random_policy(env.num_actions)
+        else:
+            pol = trainer.greedy_policy(p) if policy == "trained" else shielded(p)
         return run_episodes(env, env_params, pol, key, episodes, max_steps)
 
     out = jax.device_get(jax.jit(jax.vmap(one))(params))
@@ -332,7 +356,6 @@ def seed_statistics(values: Sequence[float | None]) -> dict[str, Any]:
         "iqm": iqm(x),
         "iqm_ci95": None if iqm_ci is None else list(iqm_ci),
     }
-
 
 
 # ------------------------------------------------------------------------------- tables

@@ -22,6 +22,7 @@ from jaxnav.evaluate import (
     print_eval_table,
     print_seed_statistics,
     seed_statistics,
+    shielded_policy,
 )
 from jaxnav.programs import enable_compilation_cache
 from jaxnav.safe_io import WriteFault, check_output_file
@@ -42,7 +43,13 @@ def parser() -> argparse.ArgumentParser:
     cli.add_env_args(p)
     p.add_argument("--episodes", type=int, default=1000, help="test episodes per seed")
     p.add_argument("--seed", type=int, default=0, help="seed of the test episodes")
-    p.add_argument("--policy", choices=("trained", "random"), default="trained")
+    p.add_argument(
+        "--policy",
+        choices=("trained", "shielded", "random"),
+        default="trained",
+        help="shielded: the trained policy among the moves its lidar does not show blocked "
+        "over the next step (robot envs, feed-forward policies)",
+    )
     p.add_argument(
         "--out",
         type=Path,
@@ -99,6 +106,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         else:
             on = run_dir.run_env(config, env, overrides)  # the run's sensors go with it
             config, trainer, params = run_dir.load_run_on(args.run, *on)
+        if args.policy == "shielded":  # refused here, in one line, for a policy it cannot read
+            shielded_policy(trainer.network, trainer.env, trainer.env_params)
     except (cli.UsageError, ValueError, FileNotFoundError) as e:
         return cli.fail(prog, str(e))
     enable_compilation_cache()

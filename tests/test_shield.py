@@ -1,0 +1,113 @@
+"""The lidar collision monitor (``jaxnav.deploy.shield``): which moves it blocks, numpy and JAX
+alike, and what it changes in the simulator and at deployment."""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxnav
+from jaxnav import pretrained
+from jaxnav.deploy.shield import Shield
+from jaxnav.evaluate import run_episodes
+from jaxnav.evaluate.__main__ import main as evaluate_main
+
+SMALL = {"num_layouts": 8, "backend": "kinematic"}
+
+
+@pytest.fixture(scope="module")
+def robot():
+    env, params = jaxnav.make("RobotNav-v0", **SMALL)
+    shield = Shield.from_layouts(
+        env.observation_layout(params), env.action_layout(), env.sensor_layout()
+    )
+    return env, params, shield
+
+
+def scan(env, params, shield: Shield, walls: dict[int, float]) -> np.ndarray:
+    """An observation whose newest frame reads the laser range on every beam but those in
+    ``walls`` (beam -> metres)."""
+    obs = np.zeros(env.observation_layout(params)["size"], np.float32)
+    for beam, (i, metres) in enumerate(zip(shield.laser_index, shield.laser_metres, strict=True)):
+        obs[i] = walls.get(beam, metres) / metres
+    return obs
+
+
+def test_a_wall_ahead_blocks_forward_one_behind_backward_and_turns_never(robot):
+    env, params, shield = robot
+    names = [a["name"] for a in env.action_layout()]
+    angles = np.asarray(shield.angles)
+    ahead, behind = np.argmin(np.abs(angles)), np.argmax(np.abs(angles))
+    left = np.argmin(np.abs(angles - math.pi / 2))
+    assert abs(angles[behind]) == pytest.approx(math.pi) and angles[ahead] == pytest.approx(0)
+    near = shield.radius + max(shield.reach) - 0.01  # the disc's front after one step, less 1 cm
+    cases = {
+        "open": ({}, set()),
+        "ahead": ({ahead: near}, {"forward"}),
+        "ahead, out of reach": ({ahead: near + 0.06}, set()),
+        "behind": ({behind: near}, {"backward"}),
+        "beside, parallel": ({left: shield.radius + 0.02}, set()),
+    }
+    for case, (walls, blocked) in cases.items():
+        got = shield.blocked(scan(env, params, shield, walls))
+        assert {n for n, b in zip(names, got, strict=True) if b} == blocked, case
+
+
+def test_numpy_and_jax_block_the_same_moves_on_the_envs_observations(robot):
+    env, params, shield = robot
+    keys = jax.random.split(jax.random.key(0), 64)
+    obs, state = jax.vmap(env.reset, in_axes=(0, None))(keys, params)
+    step = jax.jit(jax.vmap(env.step, in_axes=(0, 0, 0, None)))
+    seen = []
+    for t in range(40):  # forward mostly: many walls come near
+        actions = jnp.where(jax.random.uniform(jax.random.key(t), (64,)) < 0.7, 0, 2)
+        obs, state, *_ = step(jax.random.split(jax.random.key(100 + t), 64), state, actions, params)
+        seen.append(np.asarray(obs))
+    seen = np.concatenate(seen)
+    blocked_np = shield.blocked(seen)
+    np.testing.assert_array_equal(blocked_np, np.asarray(shield.blocked(jnp.asarray(seen), jnp)))
+    assert 0 < blocked_np[:, 0].mean() < 1  # some forward moves blocked, not all
+
+
+def test_a_shielded_policy_that_wants_forward_crashes_far_less(robot):
+    env, params, shield = robot
+    q = jnp.array([1.0, 0.0, 0.5, 0.4])  # forward first, then turn left
+    plain = lambda key, obs: jnp.argmax(jnp.broadcast_to(q, obs.shape[:1] + q.shape), -1)  # noqa: E731
+
+    def shielded(key, obs):
+        return shield.act(jnp.broadcast_to(q, obs.shape[:1] + q.shape), obs, jnp)
+
+    key, steps = jax.random.key(3), 200
+    crashes = {
+        name: float(np.mean(run_episodes(env, params, pol, key, 64, steps)["collision"]))
+        for name, pol in (("plain", plain), ("shielded", shielded))
+    }
+    # the rest touch wall corners that lie between two beams
+    assert crashes["plain"] > 0.9 and crashes["shielded"] < 0.35, crashes
+
+
+def test_the_deployed_policy_acts_as_the_evaluated_one():
+    policy = pretrained.load("robotnav-sizes")
+    trainer_env, params = jaxnav.make(
+        policy.metadata["env_id"], **{**policy.metadata["env_kwargs"], **SMALL}
+    )
+    shield = Shield.from_metadata(policy.metadata)
+    keys = jax.random.split(jax.random.key(1), 32)
+    obs, _ = jax.vmap(trainer_env.reset, in_axes=(0, None))(keys, params)
+    obs = np.asarray(obs)
+    q = policy.q_values(obs)
+    np.testing.assert_array_equal(policy.act(obs, shielded=True), shield.act(q, obs))
+    np.testing.assert_array_equal(
+        policy.act(obs, shielded=True),
+        np.asarray(shield.act(jnp.asarray(q), jnp.asarray(obs), jnp)),
+    )
+
+
+def test_evaluate_refuses_a_shield_for_a_policy_without_lidar_in_one_line(capsys):
+    assert evaluate_main(["--pretrained", "gridmaze-dqn", "--policy", "shielded"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "--policy shielded" in err and "lidar" in err
