@@ -274,8 +274,10 @@ def markdown(rows: list[dict[str, Any]]) -> str:
 
 
 def shielded(row: dict[str, Any]) -> str:
-    """What a table adds to the label of a row tested through the collision monitor."""
-    return ", shielded" if row.get("policy") == "shielded" else ""
+    """What a table adds to the label of a row tested from its exported npz or through the
+    collision monitor."""
+    tested = ", exported npz" if row.get("tested") == "exported npz" else ""
+    return tested + (", shielded" if row.get("policy") == "shielded" else "")
 
 
 def over_seeds(rows: list[dict[str, Any]]) -> str:

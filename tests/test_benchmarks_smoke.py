@@ -340,7 +340,7 @@ def test_mapfree_sweep_tests_an_exported_row_without_training(tmp_path: Path, mo
     for row in (greedy, shielded):
         assert set(row["tests"]) >= {"held-out"}
         assert 0.0 <= row["tests"]["held-out"]["success"] <= 1
-    assert "| 17 | 0 | row 11 + odometry trail of 0.5 m cells, shielded |" in (
+    assert "| 17 | 0 | row 11 + odometry trail of 0.5 m cells, exported npz, shielded |" in (
         out.with_suffix(".md").read_text()
     )
     assert "| n/a |" in out.with_suffix(".md").read_text()

@@ -227,3 +227,25 @@ def test_reset_starts_a_policy_with_memory_afresh(nav):
     n.act(scan=full_scan(), pose=(11.0, 1.0, 0.0))
     n.reset(goal=(13.7, 3.7))
     assert policy.resets == 2
+
+
+def test_a_shielded_navigator_only_turns_when_walls_close_in_ahead_and_behind():
+    """Boxed in 0.3 m ahead and behind (a 0.25 m robot), with the goal straight ahead: the
+    shielded navigator turns; its monitor reads the navigator's radius."""
+    nav = Navigator(pretrained.path("robotjaxnav-mapfree"), radius=0.25, shielded=True)
+    assert nav.shield is not None and nav.shield.radius == 0.25
+    nav.reset(goal=(5.0, 0.0))
+    num = 360
+    angles = -np.pi + np.arange(num) * (2 * np.pi / num)
+    ranges = np.where(
+        np.abs(np.cos(angles)) > 0.5, 0.3 / np.maximum(np.abs(np.cos(angles)), 1e-6), 3.0
+    )
+    scan = LaserScan(
+        angle_min=-np.pi,
+        angle_increment=2 * np.pi / num,
+        range_max=3.5,
+        ranges=np.minimum(ranges, 3.0),
+    )
+    names = [a["name"] for a in nav.actions]
+    for _ in range(5):
+        assert names[nav.act(scan=scan, pose=(0.0, 0.0, 0.0))] in ("turn_left", "turn_right")

@@ -57,6 +57,21 @@ def test_a_wall_ahead_blocks_forward_one_behind_backward_and_turns_never(robot):
         assert {n for n, b in zip(names, got, strict=True) if b} == blocked, case
 
 
+def test_a_corner_between_two_beams_blocks_forward_a_straight_wall_as_near_does_not(robot):
+    """A right-angled corner 0.29 m ahead, pointing at the robot between the beams at 0 and
+    11.25 degrees, whose returns both lie out of the step's reach (0.30 m): blocked. A straight
+    wall 0.32 m ahead, read by five beams: not blocked."""
+    env, params, shield = robot
+    angles = np.degrees(np.asarray(shield.angles))
+    beam = {round(float(a), 2): i for i, a in enumerate(angles)}
+    assert shield.radius + max(shield.reach) == pytest.approx(0.30)
+    # faces (1, -1) and (1, 1) from the corner (0.29, 0.03): the beams' hits on them
+    corner = {beam[0.0]: 0.32, beam[11.25]: math.hypot(0.29 + 0.0346, 0.03 + 0.0346)}
+    wall = {beam[a]: 0.32 / math.cos(math.radians(a)) for a in (-22.5, -11.25, 0.0, 11.25, 22.5)}
+    assert shield.blocked(scan(env, params, shield, corner))[0]
+    assert not shield.blocked(scan(env, params, shield, wall))[0]
+
+
 def test_numpy_and_jax_block_the_same_moves_on_the_envs_observations(robot):
     env, params, shield = robot
     keys = jax.random.split(jax.random.key(0), 64)
@@ -100,9 +115,9 @@ def test_the_deployed_policy_acts_as_the_evaluated_one():
     obs, _ = jax.vmap(trainer_env.reset, in_axes=(0, None))(keys, params)
     obs = np.asarray(obs)
     q = policy.q_values(obs)
-    np.testing.assert_array_equal(policy.act(obs, shielded=True), shield.act(q, obs))
+    np.testing.assert_array_equal(policy.act(obs, policy.shield), shield.act(q, obs))
     np.testing.assert_array_equal(
-        policy.act(obs, shielded=True),
+        policy.act(obs, policy.shield),
         np.asarray(shield.act(jnp.asarray(q), jnp.asarray(obs), jnp)),
     )
 

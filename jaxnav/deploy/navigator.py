@@ -31,6 +31,7 @@ the simulator's install: JAX, Pillow and PyYAML).
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from collections.abc import Sequence
 
@@ -52,11 +53,14 @@ class Navigator:
         mount_yaw: float = 0.0,
         beam_width: float = 0.0,
         fill_uncovered: float | None = None,
+        shielded: bool = False,
     ):
         """``policy``: an npz file or a loaded ``Policy``; ``map``: a ``GridMap`` (None for a
         map-free policy); ``radius``: the robot's, metres (None: the one the policy was trained
         with); ``margin``: metres more the planned path keeps from walls; ``mount_yaw``,
-        ``beam_width``, ``fill_uncovered``: as ``ScanObservation``'s."""
+        ``beam_width``, ``fill_uncovered``: as ``ScanObservation``'s; ``shielded``: act only
+        among the moves the lidar does not show blocked over the next step, for a robot of
+        ``radius`` (``jaxnav.deploy.shield``)."""
         self.policy = policy if isinstance(policy, Policy) else Policy.load(policy)
         meta = self.policy.metadata
         sensors = meta.get("sensors")
@@ -95,6 +99,9 @@ class Navigator:
                 moves=sensors["waypoint_moves"] or 8,
             )
         self.actions = meta["actions"]
+        self.shield = None
+        if shielded:  # the observation's radius where it has one, else this robot's
+            self.shield = dataclasses.replace(self.policy.shield, radius=self.radius)
         self.goal: tuple[float, float] | None = None
         self.waypoint: tuple[float, float] | None = None  # the last act's, map frame
 
@@ -129,7 +136,7 @@ class Navigator:
             waypoint = (self.waypoint[0] - ox, self.waypoint[1] - oy)
         gx, gy = self.goal
         obs = self.observe(scan, (x - ox, y - oy, yaw), (gx - ox, gy - oy), waypoint)
-        action = self.policy.act(obs)
+        action = self.policy.act(obs, self.shield)
         self.observe.acted(action)
         return action
 

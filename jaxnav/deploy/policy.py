@@ -330,16 +330,21 @@ class Policy:
         """The Q-values of ``obs``, with memory read with the current state (not advanced)."""
         return forward(self.arrays, self.network, obs, self.hidden)
 
-    def act(self, obs: np.ndarray, shielded: bool = False) -> Any:
+    @property
+    def shield(self) -> Shield:
+        """The lidar collision monitor for this policy's robot (``jaxnav.deploy.shield``);
+        ``ValueError`` (one line) for a policy without lidar."""
+        return Shield.from_metadata(self.metadata)
+
+    def act(self, obs: np.ndarray, shield: Shield | None = None) -> Any:
         """The greedy action: the first of the largest Q-values, as ``jnp.argmax`` picks; with
-        memory the state advances to the one after ``obs``. ``shielded``: among the moves the
-        robot's lidar does not show blocked over the next step (``jaxnav.deploy.shield``;
-        robot policies only, ``ValueError`` otherwise)."""
+        memory the state advances to the one after ``obs``. With a ``shield`` (e.g.
+        ``policy.shield``), the best of the moves it does not block."""
         q, hidden = step(self.arrays, self.network, obs, self.hidden)
         if self.memory:
             self.hidden = hidden
-        if shielded:
-            action = Shield.from_metadata(self.metadata).act(q, np.asarray(obs, np.float32))
+        if shield is not None:
+            action = shield.act(q, np.asarray(obs, np.float32))
         else:
             action = np.argmax(q, axis=-1)
         return int(action) if action.ndim == 0 else action

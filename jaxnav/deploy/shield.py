@@ -71,10 +71,16 @@ class Shield:
         hit = rho < 0.999 * xp.asarray(self.laser_metres, obs.dtype)  # the range: no return
         # neighbouring beams (the last and first too, where the beams go all around)
         nxt = list(range(1, len(self.angles))) + ([0] if self.all_around else [])
-        pair = hit[..., : len(nxt)] & hit[..., nxt]
+        pair = hit[..., : len(nxt)] & hit[..., nxt] & self.bends(x, y, hit, xp)
         x0, y0 = x[..., : len(nxt)], y[..., : len(nxt)]
         mx, my = (x0 + x[..., nxt]) / 2, (y0 + y[..., nxt]) / 2
         half = xp.sqrt((x0 - x[..., nxt]) ** 2 + (y0 - y[..., nxt]) ** 2) / 2
+        # both faces of one corner: returns about as far (a wall's end seen against a far wall
+        # is not modelled)
+        spacing = np.abs(np.diff(np.asarray(self.angles)[[*range(len(self.angles)), *nxt[-1:]]]))
+        spacing = np.minimum(spacing, 2 * np.pi - spacing)[: len(nxt)]
+        near = xp.minimum(rho[..., : len(nxt)], rho[..., nxt])
+        pair = pair & (half <= near * xp.asarray(np.sin(spacing), obs.dtype))
         moves = []
         for reach in self.reach:
             if reach == 0.0:  # turning in place
@@ -86,6 +92,28 @@ class Shield:
             corner = corner & (sign * mx - half < length)
             moves.append(xp.any(point, axis=-1) | xp.any(corner, axis=-1))
         return xp.stack(moves, axis=-1)
+
+    def bends(self, x: Any, y: Any, hit: Any, xp: Any = np) -> Any:
+        """bool [..., pairs]: whether the returns of beams i and i + 1 may have a corner
+        between them: neither of them lies on a straight line with its other neighbour's
+        return (three returns in a line are one straight wall)."""
+        n = len(self.angles)
+        idx = np.arange(n)
+        prv, nxt = (idx - 1) % n, (idx + 1) % n
+
+        def straight(a: Any, b: Any, c: Any) -> Any:  # b on the line a-c, within 1 cm
+            cross = (x[..., c] - x[..., a]) * (y[..., b] - y[..., a]) - (
+                y[..., c] - y[..., a]
+            ) * (x[..., b] - x[..., a])
+            length = xp.sqrt((x[..., c] - x[..., a]) ** 2 + (y[..., c] - y[..., a]) ** 2)
+            ok = hit[..., a] & hit[..., b] & hit[..., c]
+            return ok & (xp.abs(cross) < 0.01 * xp.maximum(length, 1e-6))
+
+        line = straight(prv, idx, nxt)  # return i on one line with both its neighbours
+        if not self.all_around:  # the end beams have one neighbour: never in a line
+            line = line & xp.asarray((idx > 0) & (idx < n - 1))
+        pairs = len(nxt) if self.all_around else n - 1
+        return ~line[..., :pairs] & ~line[..., nxt[:pairs]]
 
     @property
     def all_around(self) -> bool:
