@@ -76,6 +76,9 @@ VARIANTS: list[tuple[str, dict[str, Any], dict[str, Any]]] = [
         {"trail_cell": 0.5, **GENTLE, **POTENTIAL},
         {},
     ),
+    # the lidar collision monitor on the robot: a move it blocks is not executed
+    ("map-free, collision monitor", {"shielded": True}, {}),
+    ("map-free, odometry trail, collision monitor", {"trail_cell": 0.5, "shielded": True}, {}),
 ]
 
 

@@ -138,6 +138,13 @@ ROWS: list[tuple[str, str, dict[str, Any], dict[str, Any]]] = [
         {**MIXED_GOAL, "trail_cell": 0.5},
         {},
     ),
+    # the lidar collision monitor on the robot in training: a move it blocks is not executed
+    (
+        "row 14 + collision monitor",
+        "RobotNav-v0",
+        {**ODOMETRY, "frames": 8, **MIXED_GOAL, "trail_cell": 0.5, "shielded": True},
+        {},
+    ),
 ]
 
 

@@ -106,23 +106,47 @@ def test_a_shielded_policy_that_wants_forward_crashes_far_less(robot):
 
 
 def test_the_deployed_policy_acts_as_the_evaluated_one():
+    """``Policy.act(obs, policy.shield)`` (numpy) picks what the JAX monitor picks from the
+    same Q-values, on observations whose lasers read anything up to the range."""
     policy = pretrained.load("robotnav-sizes")
-    trainer_env, params = jaxnav.make(
-        policy.metadata["env_id"], **{**policy.metadata["env_kwargs"], **SMALL}
-    )
-    shield = Shield.from_metadata(policy.metadata)
-    keys = jax.random.split(jax.random.key(1), 32)
-    obs, _ = jax.vmap(trainer_env.reset, in_axes=(0, None))(keys, params)
-    obs = np.asarray(obs)
+    shield = policy.shield
+    rng = np.random.default_rng(0)
+    obs = rng.uniform(0.0, 1.0, (256, policy.obs_size)).astype(np.float32)
+    obs[:, shield.radius_index] = rng.uniform(0.1, 0.245, 256)
     q = policy.q_values(obs)
-    np.testing.assert_array_equal(policy.act(obs, policy.shield), shield.act(q, obs))
+    acted = policy.act(obs, shield)
+    np.testing.assert_array_equal(acted, shield.act(q, obs))
     np.testing.assert_array_equal(
-        policy.act(obs, policy.shield),
-        np.asarray(shield.act(jnp.asarray(q), jnp.asarray(obs), jnp)),
+        acted, np.asarray(shield.act(jnp.asarray(q), jnp.asarray(obs), jnp))
     )
+    blocked = shield.blocked(obs)
+    assert 0 < blocked[:, 0].mean() < 1 and not blocked[np.arange(256), acted].any()
+    assert (acted != np.argmax(q, axis=-1)).any()  # the monitor changed some actions
 
 
 def test_evaluate_refuses_a_shield_for_a_policy_without_lidar_in_one_line(capsys):
     assert evaluate_main(["--pretrained", "gridmaze-dqn", "--policy", "shielded"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "--policy shielded" in err and "lidar" in err
+
+
+def test_a_shielded_env_stands_where_its_lidar_shows_the_move_blocked():
+    """``shielded=True``: the robot facing a wall 0.11 m from its disc does not drive into it
+    (it stands, paying a step); without the monitor the same command crashes."""
+    key = jax.random.key(0)
+    outcomes = {}
+    for shielded in (False, True):
+        env, params = jaxnav.make("RobotSimple-v0", backend="kinematic", shielded=shielded)
+        pose, goal = jnp.array([1.5, 0.26, -math.pi / 2]), jnp.array([8.5, 5.5])
+        _, s = env.reset_to(key, params, pose, goal)
+        _, s1, reward, _, info = jax.jit(env.step_env)(key, s, 0, params)  # forward
+        outcomes[shielded] = (bool(info["collision"]), np.asarray(s1.pose), float(reward))
+        _, s2, _, _, info = jax.jit(env.step_env)(key, s, 2, params)  # a turn is never blocked
+        assert not bool(info["collision"]) and float(s2.pose[2]) != float(s.pose[2])
+    assert outcomes[False][0] and not outcomes[True][0]
+    np.testing.assert_allclose(outcomes[True][1], [1.5, 0.26, -math.pi / 2], atol=1e-6)
+    assert outcomes[True][2] == pytest.approx(env.config.step_reward_start)
+    with pytest.raises(ValueError, match=r"^shielded=True: .*obs_radius=True"):
+        jaxnav.make("RobotNav-v0", shielded=True, radius_range=(0.1, 0.2), num_layouts=4)
+    with pytest.raises(ValueError, match=r"^shielded='yes': must be true or false"):
+        jaxnav.make("RobotSimple-v0", shielded="yes")

@@ -53,14 +53,14 @@ class Navigator:
         mount_yaw: float = 0.0,
         beam_width: float = 0.0,
         fill_uncovered: float | None = None,
-        shielded: bool = False,
+        shielded: bool | None = None,
     ):
         """``policy``: an npz file or a loaded ``Policy``; ``map``: a ``GridMap`` (None for a
         map-free policy); ``radius``: the robot's, metres (None: the one the policy was trained
         with); ``margin``: metres more the planned path keeps from walls; ``mount_yaw``,
         ``beam_width``, ``fill_uncovered``: as ``ScanObservation``'s; ``shielded``: act only
         among the moves the lidar does not show blocked over the next step, for a robot of
-        ``radius`` (``jaxnav.deploy.shield``)."""
+        ``radius`` (``jaxnav.deploy.shield``; None: where the policy was trained so)."""
         self.policy = policy if isinstance(policy, Policy) else Policy.load(policy)
         meta = self.policy.metadata
         sensors = meta.get("sensors")
@@ -100,6 +100,8 @@ class Navigator:
             )
         self.actions = meta["actions"]
         self.shield = None
+        if shielded is None:
+            shielded = "collision_monitor" in sensors
         if shielded:  # the observation's radius where it has one, else this robot's
             self.shield = dataclasses.replace(self.policy.shield, radius=self.radius)
         self.goal: tuple[float, float] | None = None

@@ -59,8 +59,9 @@ class Shield:
         """The monitor of an exported policy (its ``metadata``)."""
         return cls.from_layouts(metadata["observation"], metadata["actions"], metadata["sensors"])
 
-    def blocked(self, obs: Any, xp: Any = np) -> Any:
-        """bool [..., num_actions]: the moves whose sweep holds a lidar return of ``obs``."""
+    def blocked(self, obs: Any, xp: Any = np, speed_scale: Any = 1.0) -> Any:
+        """bool [..., num_actions]: the moves whose sweep holds a lidar return of ``obs``, for
+        speeds ``speed_scale`` times the layouts'."""
         rho = obs[..., list(self.laser_index)] * xp.asarray(self.laser_metres, obs.dtype)
         if self.radius_index is None:
             radius = xp.full(obs.shape[:-1] + (1,), self.radius, obs.dtype)
@@ -86,7 +87,7 @@ class Shield:
             if reach == 0.0:  # turning in place
                 moves.append(xp.zeros(obs.shape[:-1], bool))
                 continue
-            sign, length = (1.0 if reach > 0 else -1.0), abs(reach) + radius
+            sign, length = (1.0 if reach > 0 else -1.0), abs(reach) * speed_scale + radius
             point = (xp.abs(y) < radius) & (sign * x > 0) & (sign * x < length)
             corner = pair & (xp.abs(my) < radius + half) & (sign * mx + half > 0)
             corner = corner & (sign * mx - half < length)

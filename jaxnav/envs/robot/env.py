@@ -113,6 +113,7 @@ from flax import struct
 
 from jaxnav import spaces
 from jaxnav.deploy import planner
+from jaxnav.deploy.shield import Shield
 from jaxnav.environment import Environment, EnvParams, EnvState, is_concrete, layout_from_cdf
 from jaxnav.envs.maze_algorithms import (
     FLOAT32_MAX,
@@ -210,6 +211,9 @@ class RobotConfig:
     # side (metres, in the frame of its start pose) at its position and at 1 and 2 cells away in
     # 8 directions around its heading; memory of where it has searched. 0: none
     trail_cell: float = 0.0
+    # a collision monitor on the robot (``jaxnav.deploy.shield``): a move its lidar shows
+    # blocked over the step is not executed, the robot stands that step
+    shielded: bool = False
     # a global planner's hint: (sin, cos) of the direction to the point about
     # ``waypoint_distance`` metres ahead on a shortest path through the maze's free cells (that
     # many metres in whole cells, at least one), and its distance / laser_range; in metres, not
@@ -366,8 +370,14 @@ class RobotConfig:
             raise ValueError(
                 f"map_cell_size={self.map_cell_size!r}: must be a positive number of metres"
             )
-        if not isinstance(self.unknown_free, bool):
-            raise ValueError(f"unknown_free={self.unknown_free!r}: must be true or false")
+        for name in ("unknown_free", "shielded"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"{name}={getattr(self, name)!r}: must be true or false")
+        if self.shielded and self.radius_range is not None and not self.obs_radius:
+            raise ValueError(
+                "shielded=True: with radius_range the monitor reads the radius from the "
+                "observation; pass obs_radius=True"
+            )
         if self.maze == "random" and self.num_layouts * self.random_size**2 > MAX_BANK_CELLS:
             raise ValueError(
                 f"num_layouts={self.num_layouts}, random_size={self.random_size}: too many "
@@ -663,6 +673,13 @@ class RobotNav(Environment[RobotState, RobotParams]):
         # steps draw random numbers only with noise on: otherwise the step's key stays the
         # reset's, as before the noise options existed (the same episodes bit for bit)
         self.stochastic_step = c.has_step_noise
+        self.shield = None
+        if c.shielded:  # over this env's own observation (its frames, flattened)
+            self.shield = Shield.from_layouts(
+                layout.observation_layout(self, ACTION_NAMES),
+                layout.action_layout(self, ACTION_NAMES),
+                layout.sensor_layout(self),
+            )
         self.physics = None
         if c.backend == "mjx":  # imported here so that `import jaxnav` does not load MuJoCo
             from jaxnav.envs.robot.mjx_backend import MjxRobot
@@ -770,6 +787,10 @@ class RobotNav(Environment[RobotState, RobotParams]):
         k_move, k_sense = jax.random.split(key) if self.stochastic_step else (key, key)
         v, omega = self._command(k_move, state, action)
         radius = c.radius if state.radius is None else state.radius
+        if self.shield is not None:  # the radius the observation reads, else the config's
+            scale = 1.0 if state.speed is None else state.speed / c.speed
+            blocked = self.shield.blocked(state.frames.reshape(-1), jnp, scale)
+            v = jnp.where(blocked[action], 0.0, v)
         if self.physics is None:
             center, half_size = self._collision_boxes(params, state.layout)
             pose, collided, penetration = geometry.move_with_walls(

@@ -145,6 +145,10 @@ def sensor_layout(env: Any) -> dict[str, Any]:
         "waypoint_distance_m": c.waypoint_distance or None,
         "waypoint_moves": c.waypoint_moves if c.waypoint_distance else None,
     }
+    if c.shielded:  # (absent without, as the trail's)
+        out["collision_monitor"] = (
+            "trained with jaxnav.deploy.shield: a move it blocks is not executed"
+        )
     if c.trail_cell:  # (absent without: the metadata of policies without a trail stays as it was)
         out |= {
             "trail_cell_m": c.trail_cell,
