@@ -260,7 +260,7 @@ def markdown(rows: list[dict[str, Any]]) -> str:
     names = list(dict.fromkeys(name for r in rows for name in r["tests"]))
     head = "| row | seed | setting | train s | env steps | episodes | " + " | ".join(names) + " |"
     lines = [head, "|" + "---|" * (6 + len(names))]
-    for r in sorted(rows, key=lambda r: (r["row"], shielded(r), r.get("seed", 0))):
+    for r in sorted(rows, key=lambda r: (r["row"], label_suffix(r), r.get("seed", 0))):
         tests = r["tests"]
         train_s = "n/a" if r["train_s"] is None else f"{r['train_s']:.1f}"
         cells = [
@@ -268,7 +268,7 @@ def markdown(rows: list[dict[str, Any]]) -> str:
             for n in names
         ]
         lines.append(
-            f"| {r['row']} | {r.get('seed', 0)} | {r['label']}{shielded(r)} | {train_s} | "
+            f"| {r['row']} | {r.get('seed', 0)} | {r['label']}{label_suffix(r)} | {train_s} | "
             f"{r['env_steps']:,} | {r['episodes']} | " + " | ".join(cells) + " |"
         )
     text = "\n".join(lines) + (
@@ -280,7 +280,7 @@ def markdown(rows: list[dict[str, Any]]) -> str:
     return text + over_seeds(rows)
 
 
-def shielded(row: dict[str, Any]) -> str:
+def label_suffix(row: dict[str, Any]) -> str:
     """What a table adds to the label of a row tested from its exported npz or through the
     collision monitor."""
     tested = ", exported npz" if row.get("tested") == "exported npz" else ""
@@ -290,7 +290,7 @@ def shielded(row: dict[str, Any]) -> str:
 def over_seeds(rows: list[dict[str, Any]]) -> str:
     """Mean and standard deviation of success over the seeds of each row (and policy) tested
     with more than one (the latest result of each seed)."""
-    latest = {(r["row"], shielded(r), r.get("seed", 0)): r for r in rows}
+    latest = {(r["row"], label_suffix(r), r.get("seed", 0)): r for r in rows}
     by_row: dict[str, list[dict[str, Any]]] = {}
     for (row, policy, _), r in sorted(latest.items()):
         by_row.setdefault(f"{row}{policy}", []).append(r)

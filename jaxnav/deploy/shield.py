@@ -6,7 +6,7 @@ left. Turning in place is never blocked: a disc turns within itself. Between two
 beams that both hit, a wall's right-angled corner lies in the disc whose diameter joins the two
 returns (Thales), so a move is also blocked where such a disc reaches into its strip.
 
-One implementation for numpy (deployment, ``Policy.act(obs, shielded=True)``) and jax.numpy
+One implementation for numpy (deployment, ``Policy.act(obs, policy.shield)``) and jax.numpy
 (evaluation, ``python -m jaxnav.evaluate --policy shielded``): pass ``xp``.
 """
 
@@ -70,17 +70,15 @@ class Shield:
         angles = xp.asarray(self.angles, obs.dtype)
         x, y = rho * xp.cos(angles), rho * xp.sin(angles)
         hit = rho < 0.999 * xp.asarray(self.laser_metres, obs.dtype)  # the range: no return
-        # neighbouring beams (the last and first too, where the beams go all around)
-        nxt = list(range(1, len(self.angles))) + ([0] if self.all_around else [])
-        pair = hit[..., : len(nxt)] & hit[..., nxt] & self.bends(x, y, hit, xp)
-        x0, y0 = x[..., : len(nxt)], y[..., : len(nxt)]
-        mx, my = (x0 + x[..., nxt]) / 2, (y0 + y[..., nxt]) / 2
-        half = xp.sqrt((x0 - x[..., nxt]) ** 2 + (y0 - y[..., nxt]) ** 2) / 2
+        i, j = self.neighbours()
+        pair = hit[..., i] & hit[..., j] & self.bends(x, y, hit, xp)
+        mx, my = (x[..., i] + x[..., j]) / 2, (y[..., i] + y[..., j]) / 2
+        half = xp.sqrt((x[..., i] - x[..., j]) ** 2 + (y[..., i] - y[..., j]) ** 2) / 2
         # both faces of one corner: returns about as far (a wall's end seen against a far wall
         # is not modelled)
-        spacing = np.abs(np.diff(np.asarray(self.angles)[[*range(len(self.angles)), *nxt[-1:]]]))
-        spacing = np.minimum(spacing, 2 * np.pi - spacing)[: len(nxt)]
-        near = xp.minimum(rho[..., : len(nxt)], rho[..., nxt])
+        spacing = np.abs(np.asarray(self.angles)[j] - np.asarray(self.angles)[i])
+        spacing = np.minimum(spacing, 2 * np.pi - spacing)
+        near = xp.minimum(rho[..., i], rho[..., j])
         pair = pair & (half <= near * xp.asarray(np.sin(spacing), obs.dtype))
         moves = []
         for reach in self.reach:
@@ -94,10 +92,17 @@ class Shield:
             moves.append(xp.any(point, axis=-1) | xp.any(corner, axis=-1))
         return xp.stack(moves, axis=-1)
 
+    def neighbours(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(i, j)``: the beams of each pair of neighbours, j = i + 1, and the last with the
+        first where the beams go all around."""
+        n = len(self.angles)
+        i = np.arange(n if self.all_around else n - 1)
+        return i, (i + 1) % n
+
     def bends(self, x: Any, y: Any, hit: Any, xp: Any = np) -> Any:
-        """bool [..., pairs]: whether the returns of beams i and i + 1 may have a corner
-        between them: neither of them lies on a straight line with its other neighbour's
-        return (three returns in a line are one straight wall)."""
+        """bool [..., pairs]: whether the returns of each pair of ``neighbours`` may have a
+        corner between them: neither of them lies on a straight line with its other
+        neighbour's return (three returns in a line are one straight wall)."""
         n = len(self.angles)
         idx = np.arange(n)
         prv, nxt = (idx - 1) % n, (idx + 1) % n
@@ -113,8 +118,8 @@ class Shield:
         line = straight(prv, idx, nxt)  # return i on one line with both its neighbours
         if not self.all_around:  # the end beams have one neighbour: never in a line
             line = line & xp.asarray((idx > 0) & (idx < n - 1))
-        pairs = len(nxt) if self.all_around else n - 1
-        return ~line[..., :pairs] & ~line[..., nxt[:pairs]]
+        i, j = self.neighbours()
+        return ~line[..., i] & ~line[..., j]
 
     @property
     def all_around(self) -> bool:

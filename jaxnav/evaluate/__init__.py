@@ -39,8 +39,7 @@ def shielded_policy(network: Any, env: Environment, env_params: Any) -> Callable
     """params -> the greedy policy of ``network`` on ``env`` among the moves the robot's own
     lidar does not show blocked over the next step (``jaxnav.deploy.shield``); ``ValueError``
     (one line) for a network with memory or an env without lidar."""
-    net = network
-    if net.memory:
+    if network.memory:
         raise ValueError("--policy shielded: for feed-forward policies (this one has memory)")
     try:
         shield = Shield.from_layouts(
@@ -48,7 +47,7 @@ def shielded_policy(network: Any, env: Environment, env_params: Any) -> Callable
         )
     except ValueError as e:
         raise ValueError(f"--policy shielded: {e}") from None
-    return lambda p: lambda key, obs: shield.act(net.apply(p, obs), obs, jnp)
+    return lambda p: lambda key, obs: shield.act(network.apply(p, obs), obs, jnp)
 
 
 def layout_assignment(num_episodes: int, num_layouts: int) -> np.ndarray:
@@ -265,15 +264,15 @@ def evaluate_seeds(
     key = jax.random.key(seed)
     max_steps = int(env_params.max_steps_in_episode)
 
-    if policy == "shielded":
-        shielded = shielded_policy(trainer.network, env, env_params)
+    if policy == "random":
+        policy_of = lambda p: random_policy(env.num_actions)  # noqa: E731
+    elif policy == "shielded":
+        policy_of = shielded_policy(trainer.network, env, env_params)
+    else:
+        policy_of = trainer.greedy_policy
 
     def one(p):
-        if policy == "random":
-            pol = random_policy(env.num_actions)
-        else:
-            pol = trainer.greedy_policy(p) if policy == "trained" else shielded(p)
-        return run_episodes(env, env_params, pol, key, episodes, max_steps)
+        return run_episodes(env, env_params, policy_of(p), key, episodes, max_steps)
 
     out = jax.device_get(jax.jit(jax.vmap(one))(params))
     n = jax.tree.leaves(params)[0].shape[0]

@@ -789,7 +789,7 @@ class RobotNav(Environment[RobotState, RobotParams]):
         radius = c.radius if state.radius is None else state.radius
         if self.shield is not None:  # the radius the observation reads, else the config's
             scale = 1.0 if state.speed is None else state.speed / c.speed
-            blocked = self.shield.blocked(state.frames.reshape(-1), jnp, scale)
+            blocked = self.shield.blocked(self.get_obs(state, params), jnp, scale)
             v = jnp.where(blocked[action], 0.0, v)
         if self.physics is None:
             center, half_size = self._collision_boxes(params, state.layout)
