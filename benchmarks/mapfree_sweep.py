@@ -32,7 +32,7 @@ from jaxnav import export
 from jaxnav.config import TrainConfig
 from jaxnav.deploy.policy import Policy
 from jaxnav.envs.robot import generators
-from jaxnav.evaluate import run_episodes, shielded_policy
+from jaxnav.evaluate import policy_maker, run_episodes
 from jaxnav.experiments import HELD_OUT_MAZE_SEED, Family, default_families
 from jaxnav.presets import GENERALIST_PQN
 from jaxnav.registration import registered_envs
@@ -231,9 +231,7 @@ def run_row(
     for family in families(config):
         env_name, kwargs = family.for_run(config)
         env, env_params = jaxnav.make(env_name, **kwargs)
-        policy_of = (
-            shielded_policy(trainer.network, env, env_params) if shielded else trainer.greedy_policy
-        )
+        policy_of = policy_maker("shielded" if shielded else "trained", trainer, env, env_params)
         test = jax.jit(  # compiled once a suite, run once a seed
             lambda p, env=env, env_params=env_params, policy_of=policy_of: run_episodes(
                 env,

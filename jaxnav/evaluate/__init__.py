@@ -50,6 +50,18 @@ def shielded_policy(network: Any, env: Environment, env_params: Any) -> Callable
     return lambda p: lambda key, obs: shield.act(network.apply(p, obs), obs, jnp)
 
 
+def policy_maker(
+    policy: str, trainer: Trainer, env: Environment, env_params: Any
+) -> Callable[[Any], Policy]:
+    """params -> the policy ``policy`` names ("trained": greedy, "shielded":
+    ``shielded_policy``, "random") of ``trainer``'s network acting on ``env``."""
+    if policy == "random":
+        return lambda p: random_policy(env.num_actions)
+    if policy == "shielded":
+        return shielded_policy(trainer.network, env, env_params)
+    return trainer.greedy_policy
+
+
 def layout_assignment(num_episodes: int, num_layouts: int) -> np.ndarray:
     """The layout of each evaluation episode: round-robin, episode i in layout i mod
     ``num_layouts``, so every layout gets ``num_episodes // num_layouts`` episodes and the first
@@ -264,12 +276,7 @@ def evaluate_seeds(
     key = jax.random.key(seed)
     max_steps = int(env_params.max_steps_in_episode)
 
-    if policy == "random":
-        policy_of = lambda p: random_policy(env.num_actions)  # noqa: E731
-    elif policy == "shielded":
-        policy_of = shielded_policy(trainer.network, env, env_params)
-    else:
-        policy_of = trainer.greedy_policy
+    policy_of = policy_maker(policy, trainer, env, env_params)
 
     def one(p):
         return run_episodes(env, env_params, policy_of(p), key, episodes, max_steps)
