@@ -145,6 +145,13 @@ ROWS: list[tuple[str, str, dict[str, Any], dict[str, Any]]] = [
         {**ODOMETRY, "frames": 8, **MIXED_GOAL, "trail_cell": 0.5, "shielded": True},
         {},
     ),
+    # map-free: row 17's waypoint from a planner on the robot's own lidar map, unseen cells free
+    (
+        "row 17, waypoint from the robot's own lidar map (map-free)",
+        "RobotNav-v0",
+        {**MIXED_GOAL, "trail_cell": 0.5, "lidar_map": 0.25},
+        {},
+    ),
 ]
 
 

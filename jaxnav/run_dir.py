@@ -387,7 +387,8 @@ def load_trained_params(run: Path, trainer: Trainer) -> Any:
 CARRIED_FIELDS = (
     "num_lasers", "laser_fov", "laser_range", "obs_absolute", "obs_proximity", "obs_heading",
     "obs_goal_bearing", "waypoint_distance", "waypoint_moves", "frames", "goal_range",
-    "obs_last_action", "obs_radius", "trail_cell", "speed", "turn_speed", "dt", "radius",
+    "obs_last_action", "obs_radius", "trail_cell", "lidar_map", "speed", "turn_speed", "dt",
+    "radius",
     "backend",  # robot
     "size", "obs_mode", "sensor_radius", "waypoint_cells",  # grid envs
 )  # fmt: skip
@@ -399,7 +400,7 @@ OBSERVATION_FIELDS = frozenset(
     | {"obs_mode", "sensor_radius", "waypoint_cells"}
 )
 # carried only where set: the env kwargs of policies without them stay as they were
-CARRIED_IF_SET = frozenset({"trail_cell"})
+CARRIED_IF_SET = frozenset({"trail_cell", "lidar_map"})
 
 
 def policy_env(

@@ -126,6 +126,7 @@ from jaxnav.envs.robot import (
     geometry,
     jaxnav_levels,
     layout,
+    lidar_map,
     mazes,
     occupancy,
     shortest_paths,
@@ -223,6 +224,10 @@ class RobotConfig:
     # the diagonal are free). On 1 m cells a 4-move path's next cell flips between "up" and
     # "right" as the robot crosses a cell edge, and a greedy policy can dither there forever
     waypoint_moves: int = 8
+    # > 0: the waypoint comes from the robot's own map instead of the maze (``lidar_map``: its
+    # lidar returns in a grid of cells of this side, in metres, in its odometry frame, unseen
+    # cells free): a map-free robot's planner. 0: from the maze's true free cells
+    lidar_map: float = 0.0
     goal_reward: float = 10.0
     collision_reward: float = -5.0
     step_reward_start: float = -0.5
@@ -324,6 +329,21 @@ class RobotConfig:
         if not (self.trail_cell == 0 or _positive(self.trail_cell)):
             raise ValueError(
                 f"trail_cell={self.trail_cell!r}: must be a positive number of metres (0: no trail)"
+            )
+        if not (self.lidar_map == 0 or _positive(self.lidar_map)):
+            raise ValueError(
+                f"lidar_map={self.lidar_map!r}: must be a positive number of metres (0: the "
+                "waypoint from the maze)"
+            )
+        if self.lidar_map and not self.waypoint_distance:
+            raise ValueError(
+                f"lidar_map={self.lidar_map!r}: needs a waypoint_distance (its planner gives "
+                "the waypoint)"
+            )
+        if self.lidar_map and (self.laser_noise or self.laser_noise_rel or self.laser_dropout):
+            raise ValueError(
+                f"lidar_map={self.lidar_map!r}: the map reads the true ranges, so laser noise "
+                "and dropout must be 0"
             )
         if type(self.waypoint_moves) is not int or self.waypoint_moves not in (4, 8):
             raise ValueError(f"waypoint_moves={self.waypoint_moves!r}: must be 4 or 8")
@@ -579,6 +599,37 @@ MAPFREE_SENSORS: dict[str, Any] = {
 }
 
 
+FAR_STEPS = jnp.iinfo(jnp.int32).max  # walls, unknown cells and the arena's outside
+
+
+def descend(
+    known: jax.Array, start: tuple[jax.Array, jax.Array], num_steps: int, moves: int
+) -> tuple[jax.Array, jax.Array]:
+    """``(row, col)`` ``num_steps`` moves from cell ``start`` down the distances ``known``
+    (int32[rows, cols], ``FAR_STEPS`` where blocked), each to the lowest neighbour below the
+    cell, the first of ``planner.MOVES[:moves]`` among equals; a diagonal only where both
+    cells beside it are open (no cutting a corner)."""
+    padded = jnp.pad(known, 1, constant_values=FAR_STEPS)  # the grid's outside
+    row, col = start
+    for _ in range(num_steps):  # a few static steps
+        # a chain of selects, not an argmin, so that XLA fuses the moves into fewer GPU
+        # kernels (on a CPU too the generalist's step is faster: docs/results-history.md)
+        lowest, step_row, step_col = known[row, col], 0, 0
+        for d_row, d_col in planner.MOVES[:moves]:
+            value = padded[row + 1 + d_row, col + 1 + d_col]
+            if d_row and d_col:
+                beside_free = (padded[row + 1 + d_row, col + 1] < FAR_STEPS) & (
+                    padded[row + 1, col + 1 + d_col] < FAR_STEPS
+                )
+                value = jnp.where(beside_free, value, FAR_STEPS)
+            lower = value < lowest
+            lowest = jnp.where(lower, value, lowest)
+            step_row = jnp.where(lower, d_row, step_row)
+            step_col = jnp.where(lower, d_col, step_col)
+        row, col = row + step_row, col + step_col
+    return row, col
+
+
 def _bearing(offset: jax.Array, heading: jax.Array) -> jax.Array:
     """(sin, cos) of the direction of ``offset`` (x, y) relative to ``heading``."""
     angle = jnp.arctan2(offset[1], offset[0]) - heading
@@ -603,6 +654,7 @@ class RobotState(EnvState):
     # with ``trail_cell``: the start pose (the odometry frame) and steps per trail cell
     origin: jax.Array | None = None  # float32[3]
     trail: jax.Array | None = None  # uint8[TRAIL_CELLS, TRAIL_CELLS]
+    own_map: lidar_map.MapState | None = None  # with ``lidar_map``: the robot's own map
 
 
 @struct.dataclass(kw_only=True)
@@ -665,7 +717,7 @@ class RobotNav(Environment[RobotState, RobotParams]):
         self._bank = self._bank.replace(fit_radius=jnp.asarray(fit, jnp.float32))
         self.arena = np.asarray(self._bank.size_m, np.float32)
         # the waypoint's lookahead in whole cells of this maze (0: none)
-        self.waypoint_steps = planner.waypoint_steps(c.waypoint_distance, cell_size)
+        self.waypoint_steps = planner.waypoint_steps(c.waypoint_distance, c.lidar_map or cell_size)
         self.angles = c.laser_angles
         # enough sub-steps that one moves less than the thinnest wall's half size
         thinnest = self._bank.walls.min_half_size()
@@ -767,7 +819,13 @@ class RobotNav(Environment[RobotState, RobotParams]):
             robot["trail"] = self._visit(
                 jnp.zeros((TRAIL_CELLS, TRAIL_CELLS), jnp.uint8), pose, pose
             )
-        frame = self._frame(pose, goal, layout, params, None, radius, robot.get("trail"), pose)
+        ranges = self.lasers(pose, layout, params)
+        if self.config.lidar_map:
+            robot["own_map"] = lidar_map.start(pose, goal, ranges, *self._map_args)
+        frame = self._frame(
+            pose, goal, ranges, layout, params, action=None, radius=radius,
+            trail=robot.get("trail"), origin=pose, own_map=robot.get("own_map"),
+        )  # fmt: skip
         frame = self._sense(frame, jax.random.fold_in(key, 1))
         frames = jnp.broadcast_to(frame, (self.config.frames, frame.shape[0]))
         state = RobotState(
@@ -820,9 +878,14 @@ class RobotNav(Environment[RobotState, RobotParams]):
             after = jnp.where(at_goal, 0.0, params.progress_discount * d_after)
         r_progress = jnp.where(known, params.progress_reward * (d_before - after), 0.0)
         trail = None if state.trail is None else self._visit(state.trail, state.origin, pose)
+        ranges = self.lasers(pose, state.layout, params)
+        own_map = state.own_map
+        if own_map is not None:
+            own_map = lidar_map.observe(own_map, pose, ranges, *self._map_args)
         frame = self._frame(
-            pose, state.goal, state.layout, params, action, radius, trail, state.origin
-        )
+            pose, state.goal, ranges, state.layout, params, action=action, radius=radius,
+            trail=trail, origin=state.origin, own_map=own_map,
+        )  # fmt: skip
         gap = frame[: c.num_lasers].min() * c.laser_range - radius  # free space around it
         r_clearance = params.clearance_reward * jnp.clip(1.0 - gap / params.clearance, 0.0, 1.0)
         frame = self._sense(frame, k_sense)  # the lasers as seen (the clearance read the truth)
@@ -831,7 +894,9 @@ class RobotNav(Environment[RobotState, RobotParams]):
         # (docs/results-history.md)
         flat = jnp.concatenate([state.frames.reshape(-1)[frame.shape[0] :], frame])
         frames = flat.reshape(state.frames.shape)
-        state = state.replace(pose=pose, frames=frames, time=state.time + 1, trail=trail)
+        state = state.replace(
+            pose=pose, frames=frames, time=state.time + 1, trail=trail, own_map=own_map
+        )
         info = {
             "goal_reached": at_goal,
             "collision": collided,
@@ -1058,39 +1123,35 @@ class RobotNav(Environment[RobotState, RobotParams]):
         self, pose: jax.Array, goal: jax.Array, layout: jax.Array, params: RobotParams
     ) -> jax.Array:
         """The point ``waypoint_steps`` moves ahead of the robot's cell on a shortest path to
-        the goal (descending the 4-neighbour BFS distances by ``waypoint_moves`` moves, each to
-        the lowest neighbour, straight moves first among equals): a cell centre, or the goal
-        itself once the path reaches the goal's cell or where no path is known. The same
+        the goal (``descend`` on the maze's 4-neighbour BFS distances): a cell centre, or the
+        goal itself once the path reaches the goal's cell or where no path is known. The same
         descent as ``jaxnav.deploy.planner.waypoint_cell`` on the same table, in JAX."""
         bank = params.bank
         rows = bank.grid.shape[1]
         steps = self._steps_to_goal(goal, layout, bank)
-        far = jnp.iinfo(jnp.int32).max  # walls, unknown cells and the arena's outside
-        known = jnp.where(steps >= 0, steps.astype(jnp.int32), far)
-        padded = jnp.pad(known, 1, constant_values=far)
-        start = row, col = self._cell(pose[:2], bank)
-        # the padding stands for the arena's outside
-        moves = planner.MOVES[: self.config.waypoint_moves]
-        for _ in range(self.waypoint_steps):  # a few static steps
-            # to the lowest neighbour below the cell, the first of equals: a chain of selects,
-            # not an argmin, so that XLA fuses the moves into fewer GPU kernels (on a CPU too
-            # the generalist's step is faster: docs/results-history.md)
-            lowest, step_row, step_col = known[row, col], 0, 0
-            for d_row, d_col in moves:
-                value = padded[row + 1 + d_row, col + 1 + d_col]
-                if d_row and d_col:  # both cells beside a diagonal free: no cutting a corner
-                    beside_free = (padded[row + 1 + d_row, col + 1] < far) & (
-                        padded[row + 1, col + 1 + d_col] < far
-                    )
-                    value = jnp.where(beside_free, value, far)
-                lower = value < lowest
-                lowest = jnp.where(lower, value, lowest)
-                step_row = jnp.where(lower, d_row, step_row)
-                step_col = jnp.where(lower, d_col, step_col)
-            row, col = row + step_row, col + step_col
+        known = jnp.where(steps >= 0, steps.astype(jnp.int32), FAR_STEPS)
+        start = self._cell(pose[:2], bank)
+        row, col = descend(known, start, self.waypoint_steps, self.config.waypoint_moves)
         centre = jnp.stack([(col + 0.5), (rows - 0.5 - row)]).astype(jnp.float32) * bank.cell_size
         use_goal = (known[row, col] == 0) | (steps[start] < 0)
         return jnp.where(use_goal, goal, centre)
+
+    def own_waypoint(self, pose: jax.Array, goal: jax.Array, own_map: lidar_map.MapState):
+        """``waypoint`` on the robot's own map (``lidar_map``) instead of the maze's."""
+        cell = self.config.lidar_map
+        steps = own_map.steps.astype(jnp.int32)
+        known = jnp.where(steps < lidar_map.FAR, steps, FAR_STEPS)
+        start, _ = lidar_map.cell_of(own_map.frame, pose[:2], cell)
+        moves = self.config.waypoint_moves
+        row, col = descend(known, (start[0], start[1]), self.waypoint_steps, moves)
+        centre = lidar_map.cell_centre(own_map.frame, jnp.stack([row, col]), cell)
+        use_goal = (known[row, col] == 0) | (known[start[0], start[1]] == FAR_STEPS)
+        return jnp.where(use_goal, goal, centre)
+
+    @property
+    def _map_args(self) -> tuple[jax.Array, float, float]:
+        """``lidar_map.start`` and ``observe``'s arguments after the ranges."""
+        return self.angles, self.config.laser_range, self.config.lidar_map
 
     def lasers(self, pose: jax.Array, layout: jax.Array, params: RobotParams) -> jax.Array:
         """Laser ranges in metres (not normalized)."""
@@ -1106,17 +1167,21 @@ class RobotNav(Environment[RobotState, RobotParams]):
         self,
         pose: jax.Array,
         goal: jax.Array,
+        ranges: jax.Array,
         layout: jax.Array,
         params: RobotParams,
+        *,
         action: jax.Array | None,
         radius: jax.Array | float,
         trail: jax.Array | None = None,
         origin: jax.Array | None = None,
+        own_map: lidar_map.MapState | None = None,
     ) -> jax.Array:
-        """One frame of the observation at ``pose``; ``action`` led there (None: a reset);
-        ``trail`` and ``origin`` the odometry trail with the visit at ``pose`` counted."""
+        """One frame of the observation at ``pose`` with laser ``ranges`` (metres); ``action``
+        led there (None: a reset); ``trail`` and ``origin`` the odometry trail with the visit at
+        ``pose`` counted; ``own_map`` the robot's map with this scan in."""
         c = self.config
-        parts = [self.lasers(pose, layout, params) / c.laser_range]
+        parts = [ranges / c.laser_range]
         if c.obs_absolute:
             arena = jnp.asarray(self.arena)
             parts += [goal / arena, pose[:2] / arena]
@@ -1130,7 +1195,10 @@ class RobotNav(Environment[RobotState, RobotParams]):
         if self.config.obs_goal_bearing:
             parts.append(_bearing(goal - pose[:2], pose[2]))
         if self.waypoint_steps:
-            to_waypoint = self.waypoint(pose, goal, layout, params) - pose[:2]
+            if own_map is None:
+                to_waypoint = self.waypoint(pose, goal, layout, params) - pose[:2]
+            else:
+                to_waypoint = self.own_waypoint(pose, goal, own_map) - pose[:2]
             parts.append(_bearing(to_waypoint, pose[2]))
             parts.append(jnp.minimum(jnp.linalg.norm(to_waypoint) / c.laser_range, 1.0)[None])
         if c.obs_last_action:
