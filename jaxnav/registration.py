@@ -113,6 +113,11 @@ def env_config(env_id: str, **overrides: Any) -> Any:
     return config
 
 
+def config_fields(env_id: str) -> frozenset[str]:
+    """The names of the settings ``env_config(env_id, ...)`` takes."""
+    return frozenset(f.name for f in dataclasses.fields(_entry(env_id)[1]()))
+
+
 def make(env_id: str, **overrides: Any) -> tuple[Environment, EnvParams]:
     """``env, params = make("GridMaze-v0", size=11)``; ``ValueError`` on a bad id or value."""
     config = env_config(env_id, **overrides)

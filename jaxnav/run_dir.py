@@ -27,7 +27,7 @@ from jaxnav.agents import dqn
 from jaxnav.checkpoints import manifest_damage, sha256_of, this_process_only, write_manifest
 from jaxnav.config import TrainConfig, upgrade_saved
 from jaxnav.host import host_info, package_version
-from jaxnav.registration import env_config
+from jaxnav.registration import config_fields, env_config
 from jaxnav.safe_io import WRITE_FAULTS, WriteFault, atomic_output, write_text
 from jaxnav.train import Trainer
 
@@ -422,14 +422,15 @@ def policy_env(
             )
     if env is None or env == own_env:
         return own_env, {**own_kwargs, **overrides}
-    # the fields ``env`` has (a grid's size is no robot's); ValueError for bad overrides
-    fields = {f.name for f in dataclasses.fields(env_config(env, **overrides))}
+    fields = config_fields(env)  # a grid's size is no robot's
     carried = {
         k: trained[k]
         for k in CARRIED_FIELDS
         if k in trained and k in fields and (trained[k] or k not in CARRIED_IF_SET)
     }
-    return env, {**carried, **overrides}
+    kwargs = {**carried, **overrides}
+    env_config(env, **kwargs)  # ValueError for bad overrides
+    return env, kwargs
 
 
 def run_env(

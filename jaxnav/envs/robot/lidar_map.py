@@ -12,8 +12,8 @@ Cells (``MapState.cells``): 0 unseen, 1 a lidar return ended here, 2 the robot's
 been here (free whatever a return said: a return in a cell a wall only partly fills). The field
 (``MapState.steps``) is kept from step to step and swept ``SWEEPS`` times a step with the
 Bellman update of 4-neighbour moves (a cell: one more than its lowest neighbour), which
-corrects it both ways as returns come in; a reset starts it from the Manhattan distances of an
-empty grid.
+corrects it both ways as returns come in (cells cut off from the goal count up by one a sweep,
+toward ``FAR``); a reset starts it from the Manhattan distances of an empty grid.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ import jax.numpy as jnp
 from flax import struct
 
 MAP_CELLS = 96  # cells per side, the start at the centre: 24 m at 0.25 m cells
-SWEEPS = 8  # Bellman sweeps of the field a control step
+SWEEPS = 4  # Bellman sweeps of the field a control step
 FAR = 2**15 - 1  # a return's cell, and cells no path reaches
 ALIGN_TOLERANCE = math.radians(1.0)  # two wall segments within this are one direction
 
@@ -92,7 +92,7 @@ def observe(
     angles: jax.Array,
     max_range: float,
     cell: float,
-    sweeps: int = SWEEPS,
+    sweeps: int | None = None,
 ) -> MapState:
     """``state`` with one scan's returns and the robot's cell added and the field swept."""
     points, hit = returns(pose, ranges, angles, max_range)
@@ -101,6 +101,7 @@ def observe(
     cells = state.cells.at[index[:, 0], index[:, 1]].max(mark)
     robot, _ = cell_of(state.frame, pose[:2], cell)
     cells = cells.at[robot[0], robot[1]].set(2)
+    sweeps = SWEEPS if sweeps is None else sweeps
     return state.replace(cells=cells, steps=sweep(state.steps, cells != 1, state.goal, sweeps))
 
 
@@ -126,7 +127,7 @@ def start(
     angles: jax.Array,
     max_range: float,
     cell: float,
-    sweeps: int = SWEEPS,
+    sweeps: int | None = None,
 ) -> MapState:
     """The map after the first scan at ``pose``, for the goal at world ``goal``."""
     frame = jnp.stack([pose[0], pose[1], wall_angle(pose, ranges, angles, max_range)])
