@@ -10,6 +10,10 @@ import numpy as np
 
 TRAIL_ANGLES = tuple(np.linspace(0.0, 2 * np.pi, 8, endpoint=False))  # from the heading
 TRAIL_SATURATION = 16  # steps in a trail cell that read as 1
+# the robot's own map (``lidar_map``): cells per side, the start at the centre (24 m at 0.25 m
+# cells), and Bellman sweeps of its field a control step
+MAP_CELLS = 96
+MAP_SWEEPS = 4
 TRAIL_CELLS = 64  # the trail's cells per side, centred on the start (outside: not kept, reads 0)
 
 
@@ -156,5 +160,13 @@ def sensor_layout(env: Any) -> dict[str, Any]:
             "trail_saturation": TRAIL_SATURATION,
             "trail_frame": "the pose of the robot's first observation after a reset (its "
             "odometry's origin); cell (trail_cells // 2, trail_cells // 2) is centred on it",
+        }
+    if c.lidar_map:  # (absent without)
+        out |= {
+            "lidar_map_m": c.lidar_map,
+            "lidar_map_cells": MAP_CELLS,
+            "lidar_map_sweeps": MAP_SWEEPS,
+            "waypoint_source": "a planner on the robot's own lidar map "
+            "(jaxnav.envs.robot.lidar_map): unseen cells free, no map of the maze",
         }
     return out

@@ -24,8 +24,10 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-MAP_CELLS = 96  # cells per side, the start at the centre: 24 m at 0.25 m cells
-SWEEPS = 4  # Bellman sweeps of the field a control step
+from jaxnav.envs.robot import layout
+
+MAP_CELLS = layout.MAP_CELLS
+SWEEPS = layout.MAP_SWEEPS
 FAR = 2**15 - 1  # a return's cell, and cells no path reaches
 ALIGN_TOLERANCE = math.radians(1.0)  # two wall segments within this are one direction
 
