@@ -69,6 +69,11 @@ centre is half a cell or more from walls and the tables are those of the free ce
 radius already keeps ``FIT_MARGIN`` at each maze's narrowest gap, and a margin measured at
 cell centres would close 2-cell corridors that the robot passes with room to spare.
 
+Own map (``lidar_map``, metres): the waypoint comes from a planner on a map the robot builds
+from its own lidar and odometry (``lidar_map.py``: returns in a grid in the frame of the start
+pose, its axes along the walls of the first scan, unseen cells free), not from the maze: a
+map-free observation with the waypoint policy's layout.
+
 JaxNav's levels (``RobotJaxNav-v0``, ``maze="jaxnav"``): the single-robot benchmark of
 JaxMARL's JaxNav as SFL evaluates it, 9 x 9 interiors of 1 m cells with up to 47 random
 obstacles (``jaxnav_levels.py``), with the map-free sensors (``MAPFREE_SENSORS``: the
