@@ -8,6 +8,8 @@
 
 - ``jaxnav.deploy.planner``: waypoints on a map for a robot of a given radius (walls inflated
   by it plus a margin), the simulator's own planner.
+- ``jaxnav.deploy.lidar_map``: ``LidarMap``, the robot's own map from its lidar, the
+  simulator's, for a policy trained with its waypoint from it (``lidar_map``): no map needed.
 - ``jaxnav.deploy.navigator``: ``Navigator``, the whole loop in one object: policy file, map,
   pose, scan and goal in, action out.
 

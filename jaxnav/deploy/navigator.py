@@ -14,14 +14,17 @@ What it does each ``act``: checks the inputs (one-line ``ValueError`` naming the
 NaN pose, a scan whose size does not fit its angles or whose field of view misses the
 policy's beams, a goal off the map or inside a wall, a pose with no path to the goal); plans
 the waypoint with ``planner.Planner`` (walls inflated by the robot's ``radius`` plus
-``margin``, the same descent as the simulator's) for a policy that reads one; converts the
+``margin``, the same descent as the simulator's) for a policy that reads one, or on the
+robot's own lidar map for a policy trained so (metadata ``lidar_map_m``: ``ScanObservation``
+keeps the map, ``jaxnav.deploy.lidar_map``, and no map is needed); converts the
 scan to the policy's beams (``sensors.ScanObservation``: any beam count, angular range and
 mounting) and stacks frames; acts greedily (``Policy.act``, after ``reset()`` at each goal
 for a policy with memory); and records the action for a policy that reads its last one.
 
 Frames: pose and goal are in the map's frame (a ROS map's, e.g. ``map``); the policy sees the
 simulator's, whose origin is the map's lower-left corner (``GridMap.origin``). Map-free
-policies take any fixed frame and no map (one given is used to check the goal).
+policies, lidar map ones included, take any fixed frame and no map (one given is used to check
+the goal); a lidar map needs poses of one continuous odometry.
 
 Maps: a ``planner.GridMap``, numpy only: ``GridMap.from_occupancy_grid`` reads a ROS
 ``nav_msgs/OccupancyGrid`` (map_server's ``/map``). A text maze or a map_server YAML file is
@@ -82,8 +85,11 @@ class Navigator:
                 "jaxnav.envs.robot.occupancy.load_grid_map(path))"
             )
         names = {e["name"] for e in self.observe.frame_entries}
+        # a lidar map policy plans on the map ScanObservation builds from its scans
+        self.uses_lidar_map = self.observe.lidar_map is not None
+        plans = self.observe.needs_waypoint and not self.uses_lidar_map
         for needs, what in (
-            (self.observe.needs_waypoint, "a waypoint on a planned path"),
+            (plans, "a waypoint on a planned path"),
             ("robot_x" in names, "positions in the map's frame"),
         ):
             if needs and map is None:
@@ -109,8 +115,8 @@ class Navigator:
 
     def reset(self, goal: Sequence[float]) -> None:
         """Start driving to ``goal`` (x, y), in the map's frame: plans to it, forgets the
-        stacked frames, the last action, the odometry trail and the policy's memory;
-        ``ValueError`` naming a goal that is not finite, off the map or inside a wall."""
+        stacked frames, the last action, the odometry trail, the lidar map and the policy's
+        memory; ``ValueError`` naming a goal that is not finite, off the map or inside a wall."""
         gx, gy = check_finite("goal", goal, 2)
         if self.planner is not None:
             self.planner.set_goal((gx, gy))
@@ -133,11 +139,14 @@ class Navigator:
             )
         ox, oy = (0.0, 0.0) if self.map is None else self.map.origin
         waypoint = None
-        if self.observe.needs_waypoint:
+        if self.observe.needs_waypoint and not self.uses_lidar_map:
             self.waypoint = self.planner.waypoint(x, y)
             waypoint = (self.waypoint[0] - ox, self.waypoint[1] - oy)
         gx, gy = self.goal
         obs = self.observe(scan, (x - ox, y - oy, yaw), (gx - ox, gy - oy), waypoint)
+        if self.uses_lidar_map:
+            wx, wy = self.observe.own_waypoint
+            self.waypoint = (wx + ox, wy + oy)
         action = self.policy.act(obs, self.shield)
         self.observe.acted(action)
         return action

@@ -34,7 +34,11 @@ RobotNav-v0's: 1 m) read a point about that far ahead on a shortest path to the 
 on the robot's map provides it (``jaxnav.deploy.planner``, the simulator's own, as
 ``jaxnav.deploy.navigator.Navigator`` runs it; or the point of ROS nav2's global plan that
 distance ahead, or the goal itself when closer), given as ``waypoint=(x, y)`` in the pose's
-frame.
+frame. A policy trained with its waypoint from its own lidar map (metadata ``lidar_map_m``)
+needs no map: ``ScanObservation`` keeps that map itself (``jaxnav.deploy.lidar_map``, the
+simulator's), from the scans and poses it is given, and plans on it where no ``waypoint`` is
+passed; poses must then come from one continuous odometry, as for the trail below, the goal in
+their frame, and ``reset()`` comes at every new goal.
 
 Policies with an odometry trail (metadata ``trail_cell_m``; ``OdometryTrail``) count the
 steps the robot's path spends in square cells of that side, in the frame of the first pose
@@ -52,6 +56,8 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+
+from jaxnav.deploy.lidar_map import LidarMap
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -333,8 +339,8 @@ class OdometryTrail:
 
 class ScanObservation:
     """Builds a policy's observations from scans, poses, goals (and waypoints), keeping the
-    last ``frames`` frames (and an odometry trail, ``OdometryTrail``) as the simulator does;
-    ``reset()`` at each episode's start."""
+    last ``frames`` frames (and an odometry trail, ``OdometryTrail``, and a lidar map,
+    ``lidar_map.LidarMap``) as the simulator does; ``reset()`` at each episode's start."""
 
     def __init__(
         self,
@@ -375,6 +381,9 @@ class ScanObservation:
         self._trail_slots = [i for i, e in enumerate(self.frame_entries) if e["name"] == "trail"]
         trail = [self.frame_entries[i] for i in self._trail_slots]
         self.trail = self._trail(metadata, trail) if trail else None
+        # a waypoint from the robot's own lidar map (``lidar_map``): built from the scans
+        self.lidar_map = LidarMap.from_metadata(metadata) if sensors.get("lidar_map_m") else None
+        self.own_waypoint: tuple[float, float] | None = None  # the last frame's, pose frame
         self._last_action: int | None = None
         self._acted = True  # no action is owed before the first observation
         self.mount_yaw = float(mount_yaw)
@@ -403,12 +412,16 @@ class ScanObservation:
 
     def reset(self) -> None:
         """Forget the stacked frames (the next call fills every frame with its own), the
-        previous action and the odometry trail (the next pose is its new origin)."""
+        previous action, the odometry trail (the next pose is its new origin) and the lidar
+        map (the next scan starts it)."""
         self._stack = []
         self._last_action = None
         self._acted = True
         if self.trail is not None:
             self.trail.reset()
+        if self.lidar_map is not None:
+            self.lidar_map.clear()
+            self.own_waypoint = None
 
     def acted(self, action: int) -> None:
         """Record the action the robot executed after the last observation: a policy that
@@ -429,10 +442,13 @@ class ScanObservation:
         waypoint: Sequence[float] | None = None,
     ) -> np.ndarray:
         """One frame ``float32[frame_size]`` (no stacking). A policy with an odometry trail
-        counts ``pose`` in it as this control step's visit: one call per step."""
+        counts ``pose`` in it as this control step's visit, one with a lidar map adds the scan
+        to it: one call per step. A lidar map policy reads its map's waypoint where
+        ``waypoint`` is None."""
         x, y, yaw = check_finite("pose", pose, 3)
         gx, gy = check_finite("goal", goal, 2)
-        if self.needs_waypoint and waypoint is None:
+        own = self.lidar_map is not None and waypoint is None  # the map's waypoint, below
+        if self.needs_waypoint and waypoint is None and not own:
             raise ValueError(
                 "this policy reads a waypoint (waypoint_distance_m): pass waypoint=(x, y), "
                 "a point that far ahead on a planned path to the goal"
@@ -459,15 +475,10 @@ class ScanObservation:
             raw["waypoint_distance"] = math.hypot(wx - x, wy - y)
         values = np.empty(len(self.frame_entries), np.float64)
         for i, e in enumerate(self.frame_entries):
-            if e["name"] == "laser":
-                value = min(ranges[e["beam"]], self.laser_range) * e["scale"]
-            elif e["name"] == "trail":
-                value = 0.0  # below, once every input is checked
+            if e["name"] == "trail" or (own and e["name"].startswith("waypoint")):
+                values[i] = 0.0  # below, once every input is checked
             else:
-                value = raw[e["name"]] * e["scale"]
-            if e["clip"] is not None:
-                value = min(max(value, e["clip"][0]), e["clip"][1])
-            values[i] = value
+                values[i] = self._value(e, raw, ranges)
         too_large = ~(np.abs(values) <= np.finfo(np.float32).max)  # NaN or beyond float32
         if too_large.any():  # a pose or goal in other units or frame: no action from it
             e = self.frame_entries[int(np.argmax(too_large))]
@@ -476,10 +487,30 @@ class ScanObservation:
                 "beyond float32 (check the units and frame of the pose, goal and waypoint)"
             )
         values = values.astype(np.float32)
+        if self.lidar_map is not None:  # added after the checks: a refused input leaves it
+            self.own_waypoint = self.lidar_map.update(pose, (gx, gy), ranges)
+        if own:
+            wx, wy = self.own_waypoint
+            raw["waypoint_bearing_sin"], raw["waypoint_bearing_cos"] = bearing(wx - x, wy - y, yaw)
+            raw["waypoint_distance"] = math.hypot(wx - x, wy - y)
+            for i, e in enumerate(self.frame_entries):
+                if e["name"].startswith("waypoint"):
+                    values[i] = self._value(e, raw, ranges)
         if self.trail is not None:  # counted last: a refused input leaves the trail as it was
             self.trail.visit(pose)
             values[self._trail_slots] = self.trail.reading(pose)
         return values
+
+    def _value(self, entry: dict[str, Any], raw: dict[str, Any], ranges: np.ndarray) -> float:
+        """The observation's value of ``entry`` from the beams' ``ranges`` and ``raw``
+        quantities: scaled, then clipped."""
+        if entry["name"] == "laser":
+            value = min(ranges[entry["beam"]], self.laser_range) * entry["scale"]
+        else:
+            value = raw[entry["name"]] * entry["scale"]
+        if entry["clip"] is not None:
+            value = min(max(value, entry["clip"][0]), entry["clip"][1])
+        return value
 
     def __call__(
         self,
