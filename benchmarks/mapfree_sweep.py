@@ -3,15 +3,17 @@ each trained once and tested greedily on held-out mazes (each family apart), the
 the maze files and, where the env exists, JaxNav-style levels at JaxNav's robot size.
 
     python -m benchmarks.mapfree_sweep [--rows 0,1] [--episodes 2000] [--seeds 0,1,2] \
-        [--out benchmarks/results/mapfree_sweep.jsonl] [--policies DIR] [--trained DIR]
+        [--out benchmarks/results/mapfree_sweep.jsonl] [--policies DIR] \
+        [--trained DIR | --pretrained NAME]
 
 Every row is ``TrainConfig.for_env(env, algo="pqn")`` with the row's env and training
 overrides, seed s (``jax.random.split(key(s), 1)``; ``--seeds``, default 0, are trained
 together under ``vmap``), ``eval_episodes`` 0. "Map-free" means
 ``waypoint_distance=0``: the observation is the lidar, the goal's distance and bearing and,
 with the row's options, the robot's previous action and radius; no waypoint, no map, no arena
-coordinates. One JSON line per row and seed (appended to ``--out``) and a markdown table
-beside it, with the mean and spread over seeds of rows tested with several.
+coordinates; or ``lidar_map``: the waypoint comes from a planner on the robot's own lidar map.
+One JSON line per row and seed (appended to ``--out``) and a markdown table beside it, with the
+mean and spread over seeds of rows tested with several.
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ import numpy as np
 import jaxnav
 from benchmarks.common import machine_info
 from benchmarks.generalist_sweep import train_one
-from jaxnav import export
+from jaxnav import export, pretrained
 from jaxnav.config import TrainConfig
 from jaxnav.deploy.policy import Policy
 from jaxnav.envs.robot import generators
@@ -201,12 +203,13 @@ def run_row(
     index: int,
     episodes: int,
     policies: Path | None = None,
-    trained: Path | None = None,
+    trained: Path | str | None = None,
     seeds: tuple[int, ...] = (0,),
     shielded: bool = False,
 ) -> list[dict[str, Any]]:
     """Train row ``index`` once per seed, the seeds vmapped together (or, with ``trained``,
-    load its exported ``rowN.npz`` from that folder: no training time then) and test each
+    load its exported ``rowN.npz`` from that folder, or the shipped policy that ``trained``
+    names (a str) on the row's env: no training time then) and test each
     policy, greedy or ``shielded`` (``jaxnav.evaluate.shielded_policy``); one result a seed.
     Seed s trains with ``jax.random.split(key(s), 1)``."""
     label, env_id, env_kwargs, overrides = ROWS[index]
@@ -218,9 +221,14 @@ def run_row(
         timing["seeds_trained_together"] = len(seeds)
     else:  # the policy's own float32 network, as jaxnav.evaluate runs an exported policy
         seeds = (0,)
-        trainer, loaded = export.to_trainer(Policy.load(trained / f"row{index}.npz"))
+        if isinstance(trained, str):  # a shipped policy, on this row's env
+            trainer, loaded = export.to_trainer(pretrained.load(trained), env_id, env_kwargs)
+            tested, steps = f"pretrained {trained}", None
+        else:
+            trainer, loaded = export.to_trainer(Policy.load(trained / f"row{index}.npz"))
+            tested, steps = "exported npz", config.total_timesteps
         params = [jax.tree.map(lambda x: x[0], loaded)]
-        timing = {"train_s": None, "env_steps": config.total_timesteps, "tested": "exported npz"}
+        timing = {"train_s": None, "env_steps": steps, "tested": tested}
     rows = [
         {
             "row": index,
@@ -275,13 +283,14 @@ def markdown(rows: list[dict[str, Any]]) -> str:
     for r in sorted(rows, key=lambda r: (r["row"], label_suffix(r), r.get("seed", 0))):
         tests = r["tests"]
         train_s = "n/a" if r["train_s"] is None else f"{r['train_s']:.1f}"
+        steps = "n/a" if r["env_steps"] is None else f"{r['env_steps']:,}"
         cells = [
             f"{tests[n]['success']:.3f} / {tests[n]['collision']:.3f}" if n in tests else "n/a"
             for n in names
         ]
         lines.append(
             f"| {r['row']} | {r.get('seed', 0)} | {r['label']}{label_suffix(r)} | {train_s} | "
-            f"{r['env_steps']:,} | {r['episodes']} | " + " | ".join(cells) + " |"
+            f"{steps} | {r['episodes']} | " + " | ".join(cells) + " |"
         )
     text = "\n".join(lines) + (
         "\n\nCells: greedy success / collision rate over a row's episodes per cell "
@@ -295,7 +304,7 @@ def markdown(rows: list[dict[str, Any]]) -> str:
 def label_suffix(row: dict[str, Any]) -> str:
     """What a table adds to the label of a row tested from its exported npz or through the
     collision monitor."""
-    tested = ", exported npz" if row.get("tested") == "exported npz" else ""
+    tested = f", {row['tested']}" if row.get("tested") else ""
     return tested + (", shielded" if row.get("policy") == "shielded" else "")
 
 
@@ -332,6 +341,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", type=Path, default=Path("benchmarks/results/mapfree_sweep.jsonl"))
     p.add_argument("--policies", type=Path, help="folder to write each row's policy (rowN.npz)")
     p.add_argument("--trained", type=Path, help="test each row's rowN.npz from this folder")
+    p.add_argument("--pretrained", help="test this shipped policy on each row's env")
     p.add_argument("--seeds", default="0", help="training seeds, vmapped together: 0,1,2")
     p.add_argument(
         "--shielded", action="store_true", help="test through the lidar collision monitor"
@@ -360,13 +370,15 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     for i in indices:
         print(f"row {i}: {ROWS[i][0]}", flush=True)
-        results = run_row(i, args.episodes, args.policies, args.trained, seeds, args.shielded)
+        trained = args.pretrained or args.trained
+        results = run_row(i, args.episodes, args.policies, trained, seeds, args.shielded)
         results = [r | {"machine": machine} for r in results]
         rows += results
         args.out.parent.mkdir(parents=True, exist_ok=True)
         with args.out.open("a") as f:
             f.writelines(json.dumps(r) + "\n" for r in results)
-        print(f"  {results[0]['env_steps']:,} steps a seed, {results[0]['train_s']} s", flush=True)
+        if results[0]["train_s"] is not None:
+            print(f"  {results[0]['env_steps']:,} steps a seed, {results[0]['train_s']} s")
     args.out.with_suffix(".md").write_text(markdown(rows))
     print(markdown(rows))
     return 0

@@ -332,12 +332,17 @@ def test_mapfree_sweep_tests_an_exported_row_without_training(tmp_path: Path, mo
     monkeypatch.setattr(mapfree_sweep, "families", lambda config: [suite])
     out = tmp_path / "sweep.jsonl"
     argv = ["--rows", "17", "--episodes", "4", "--trained", str(tmp_path), "--out", str(out)]
+    # the shipped policy itself on row 19's env: its waypoint from its own lidar map
+    own = ["--rows", "19", "--episodes", "4", "--pretrained", "robotnav-sizes", "--out", str(out)]
+    assert mapfree_sweep.main(own) == 0
     assert mapfree_sweep.main(argv) == 0
     assert mapfree_sweep.main([*argv, "--shielded"]) == 0
-    greedy, shielded = (json.loads(line) for line in out.read_text().splitlines())
+    mapfree, greedy, shielded = (json.loads(line) for line in out.read_text().splitlines())
     assert greedy["row"] == 17 and greedy["train_s"] is None and greedy["tested"] == "exported npz"
     assert (greedy["policy"], shielded["policy"]) == ("greedy", "shielded")
-    for row in (greedy, shielded):
+    assert mapfree["tested"] == "pretrained robotnav-sizes" and mapfree["env_steps"] is None
+    assert mapfree["env_kwargs"]["lidar_map"] > 0
+    for row in (greedy, shielded, mapfree):
         assert set(row["tests"]) >= {"held-out"}
         assert 0.0 <= row["tests"]["held-out"]["success"] <= 1
     assert "| 17 | 0 | row 11 + odometry trail of 0.5 m cells, exported npz, shielded |" in (
