@@ -79,6 +79,13 @@ VARIANTS: list[tuple[str, dict[str, Any], dict[str, Any]]] = [
     # the lidar collision monitor on the robot: a move it blocks is not executed
     ("map-free, collision monitor", {"shielded": True}, {}),
     ("map-free, odometry trail, collision monitor", {"trail_cell": 0.5, "shielded": True}, {}),
+    # the waypoint from a planner on the robot's own lidar map, not the maze's (map-free)
+    ("waypoint from its own lidar map", {"waypoint_distance": 1.0, "lidar_map": 0.25}, {}),
+    (
+        "waypoint from its own lidar map, odometry trail",
+        {"waypoint_distance": 1.0, "lidar_map": 0.25, "trail_cell": 0.5},
+        {},
+    ),
 ]
 
 
