@@ -67,6 +67,33 @@ def random_maze():
 
 
 # ---------------------------------------------------------------------------- training
+# the generalist's sensors with a waypoint: what the lidar map tests run a robot env with
+LIDAR_SENSORS = {
+    "num_lasers": 32,
+    "laser_fov": 360.0,
+    "laser_range": 3.5,
+    "obs_absolute": False,
+    "waypoint_distance": 1.0,
+    "backend": "kinematic",
+}
+# a U whose bottom stands between the start (S) and the goal (G): the straight line from one to
+# the other is a dead end
+TRAP_MAZE = """cell_size: 0.5
+############
+#..........#
+#..........#
+#...#####..#
+#.......#..#
+#S......#G.#
+#.......#..#
+#...#####..#
+#..........#
+#..........#
+############
+"""
+TRAP_START, TRAP_GOAL = (0.75, 2.75), (4.75, 2.75)
+
+
 TINY_TRAIN = TrainConfig(
     env="GridMaze-v0",
     env_kwargs={"size": 5},

@@ -17,6 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import LIDAR_SENSORS, TRAP_GOAL, TRAP_MAZE, TRAP_START
 
 import jaxnav
 from jaxnav import export, pretrained
@@ -30,31 +31,9 @@ from jaxnav.envs.robot import lidar_map as env_map
 
 ROOT = Path(__file__).resolve().parents[1]
 ROOMS = str(ROOT / "examples/mazes/rooms_doors.txt")
-SENSORS = {
-    "num_lasers": 32,
-    "laser_fov": 360.0,
-    "laser_range": 3.5,
-    "obs_absolute": False,
-    "waypoint_distance": 1.0,
-    "lidar_map": 0.25,
-    "backend": "kinematic",
-}
-# a U whose bottom stands between the start and the goal (tests/test_lidar_map.py's): the
-# straight line to the goal is a dead end the map must route around
-TRAP = """cell_size: 0.5
-############
-#..........#
-#..........#
-#...#####..#
-#.......#..#
-#.......#G.#
-#.......#..#
-#...#####..#
-#..........#
-#..........#
-############
-"""
-START, GOAL = (0.75, 2.75), (4.75, 2.75)
+SENSORS = {**LIDAR_SENSORS, "lidar_map": 0.25}
+TRAP = TRAP_MAZE
+START, GOAL = TRAP_START, TRAP_GOAL
 # The mazes here have 0.5 m cells and starts at cell centres, so wall faces lie on centres of
 # the map's 0.25 m cells: a return's cell is never decided by float32 rounding (which the
 # env's XLA functions and numpy round differently in the last bit)

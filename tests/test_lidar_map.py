@@ -11,19 +11,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import LIDAR_SENSORS, TRAP_GOAL, TRAP_MAZE, TRAP_START
 
 import jaxnav
 from jaxnav.deploy import planner
 from jaxnav.envs.robot import lidar_map
 
-SENSORS = {
-    "num_lasers": 32,
-    "laser_fov": 360.0,
-    "laser_range": 3.5,
-    "obs_absolute": False,
-    "waypoint_distance": 1.0,
-    "backend": "kinematic",
-}
+SENSORS = LIDAR_SENSORS
 OPEN = """cell_size: 1.0
 ###########
 #.........#
@@ -36,21 +30,7 @@ OPEN = """cell_size: 1.0
 WALLED = OPEN.replace("#.........#\n#.........#\n#.........#\n#.........#", (
     "#.........#\n#.......#.#\n#.......#.#\n#.......#.#"
 ))  # fmt: skip
-# a U whose bottom stands between the start (S) and the goal (G): the straight line is a dead end
-TRAP = """cell_size: 0.5
-############
-#..........#
-#..........#
-#...#####..#
-#.......#..#
-#S......#G.#
-#.......#..#
-#...#####..#
-#..........#
-#..........#
-############
-"""
-S_XY, G_XY = (0.75, 2.75), (4.75, 2.75)
+TRAP, S_XY, G_XY = TRAP_MAZE, TRAP_START, TRAP_GOAL
 
 
 @functools.cache

@@ -94,7 +94,6 @@ def observe(
     angles: jax.Array,
     max_range: float,
     cell: float,
-    sweeps: int | None = None,
 ) -> MapState:
     """``state`` with one scan's returns and the robot's cell added and the field swept."""
     points, hit = returns(pose, ranges, angles, max_range)
@@ -103,8 +102,7 @@ def observe(
     cells = state.cells.at[index[:, 0], index[:, 1]].max(mark)
     robot, _ = cell_of(state.frame, pose[:2], cell)
     cells = cells.at[robot[0], robot[1]].set(2)
-    sweeps = SWEEPS if sweeps is None else sweeps
-    return state.replace(cells=cells, steps=sweep(state.steps, cells != 1, state.goal, sweeps))
+    return state.replace(cells=cells, steps=sweep(state.steps, cells != 1, state.goal, SWEEPS))
 
 
 def sweep(steps: jax.Array, free: jax.Array, goal: jax.Array, sweeps: int) -> jax.Array:
@@ -129,7 +127,6 @@ def start(
     angles: jax.Array,
     max_range: float,
     cell: float,
-    sweeps: int | None = None,
 ) -> MapState:
     """The map after the first scan at ``pose``, for the goal at world ``goal``."""
     frame = jnp.stack([pose[0], pose[1], wall_angle(pose, ranges, angles, max_range)])
@@ -142,4 +139,4 @@ def start(
         cells=jnp.zeros((MAP_CELLS, MAP_CELLS), jnp.uint8),
         steps=manhattan.astype(jnp.int16),
     )
-    return observe(state, pose, ranges, angles, max_range, cell, sweeps)
+    return observe(state, pose, ranges, angles, max_range, cell)
