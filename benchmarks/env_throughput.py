@@ -23,7 +23,8 @@ default; only when asked for),
 ``GridMaze-v0 step_env only`` (no time limit, no auto-reset: the cost of auto-reset is its
 ratio to GridMaze-v0), the robot ``RobotRandom-v0 mjx`` / ``RobotRandom-v0 kinematic`` (a
 random maze per episode, one backend each; ``RobotSimple-v0 ...`` too; the generalist
-``RobotNav-v0 kinematic``, a maze of its bank per episode) and the peers, each
+``RobotNav-v0 kinematic``, a maze of its bank per episode; ``... lidar_map``: its waypoint
+from the robot's own map) and the peers, each
 through its own ``make`` and auto-resetting ``step``: gymnax's ``FourRooms-misc`` and
 ``MetaMaze-misc`` (5-tuple), ``navix FourRooms`` (``Navix-FourRooms-v0``, a random layout per
 reset) and ``jaxmarl JaxNav`` (jaxmarl's JaxNav with one agent, its 15 discrete actions and its
@@ -68,11 +69,12 @@ ROBOT_ENVS = tuple(
     for env in ("RobotRandom-v0", "RobotSimple-v0")
     for backend in ("mjx", "kinematic")
 ) + ("RobotNav-v0 kinematic",)
+LIDAR_MAP = "RobotNav-v0 kinematic lidar_map"  # the waypoint from the robot's own map
 GYMNAX_ENVS = ("FourRooms-misc", "MetaMaze-misc")
 NAVIX = "navix FourRooms"
 JAXMARL = "jaxmarl JaxNav"
 PEER_ENVS = GYMNAX_ENVS + (NAVIX, JAXMARL)
-ALL_ENVS = OUR_ENVS + (NO_WAYPOINT,) + ROBOT_ENVS + PEER_ENVS
+ALL_ENVS = OUR_ENVS + (NO_WAYPOINT,) + ROBOT_ENVS + (LIDAR_MAP,) + PEER_ENVS
 DEFAULT_ENVS = OUR_ENVS + GYMNAX_ENVS
 DEFAULT_OUT = Path("benchmarks/results/env_throughput.json")
 
@@ -132,6 +134,8 @@ def build(name: str) -> Row:
     if name in ROBOT_ENVS:
         env_id, backend = name.split(" ")
         env, params = jaxnav.make(env_id, backend=backend)
+    elif name == LIDAR_MAP:
+        env, params = jaxnav.make("RobotNav-v0", backend="kinematic", lidar_map=0.25)
     elif name in (*OUR_ENVS, NO_WAYPOINT):
         by_row = {ONEHOT: {"obs_mode": "onehot"}, NO_WAYPOINT: {"waypoint_cells": 0}}
         overrides = by_row.get(name, {})
