@@ -119,6 +119,7 @@ def test_the_map_and_waypoint_are_the_envs_over_whole_episodes(maze, trap):
     assert (own.cells == 1).sum() > 50 and (own.cells == 2).sum() > 1
 
 
+@pytest.mark.slow  # whole episodes of the shipped 1024-512-256 policy
 def test_a_lidar_map_policy_runs_map_free_and_acts_as_in_the_simulator(trap):
     """robotnav-sizes (trained with the maze's waypoint; the same observation with its own
     map's) run by a ``Navigator`` with lidar-map metadata and no map, fed the env's ranges and

@@ -119,6 +119,7 @@ def test_observation_holds_no_unseen_wall(tmp):
     assert not np.array_equal(frames(OPEN, False), frames(WALLED, False))
 
 
+@pytest.mark.slow  # whole episodes of the shipped 1024-512-256 policy
 def test_waypoint_policy_leaves_a_dead_end(tmp):
     """The shipped waypoint policy, its waypoint from its own map: round a dead end that the
     straight line to the goal leads into, from every heading."""
