@@ -1141,7 +1141,9 @@ class RobotNav(Environment[RobotState, RobotParams]):
         use_goal = (known[row, col] == 0) | (steps[start] < 0)
         return jnp.where(use_goal, goal, centre)
 
-    def own_waypoint(self, pose: jax.Array, goal: jax.Array, own_map: lidar_map.MapState):
+    def own_waypoint(
+        self, pose: jax.Array, goal: jax.Array, own_map: lidar_map.MapState
+    ) -> jax.Array:
         """``waypoint`` on the robot's own map (``lidar_map``) instead of the maze's."""
         cell = self.config.lidar_map
         steps = own_map.steps.astype(jnp.int32)
