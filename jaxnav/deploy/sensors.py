@@ -337,6 +337,14 @@ class OdometryTrail:
         return np.minimum(counts / self.saturation, np.float32(1.0))
 
 
+def _waypoint_reading(waypoint: Sequence[float], pose: Sequence[float]) -> dict[str, float]:
+    """The waypoint's bearing (sin, cos) and distance from ``pose`` (x, y, yaw)."""
+    (wx, wy), (x, y, yaw) = waypoint, pose
+    sin, cos = bearing(wx - x, wy - y, yaw)
+    distance = math.hypot(wx - x, wy - y)
+    return {"waypoint_bearing_sin": sin, "waypoint_bearing_cos": cos, "waypoint_distance": distance}
+
+
 class ScanObservation:
     """Builds a policy's observations from scans, poses, goals (and waypoints), keeping the
     last ``frames`` frames (and an odometry trail, ``OdometryTrail``, and a lidar map,
@@ -470,9 +478,7 @@ class ScanObservation:
             raw[name] = float(self._last_action == i)
         raw["robot_radius"] = self.radius
         if waypoint is not None:
-            wx, wy = check_finite("waypoint", waypoint, 2)
-            raw["waypoint_bearing_sin"], raw["waypoint_bearing_cos"] = bearing(wx - x, wy - y, yaw)
-            raw["waypoint_distance"] = math.hypot(wx - x, wy - y)
+            raw |= _waypoint_reading(check_finite("waypoint", waypoint, 2), (x, y, yaw))
         values = np.empty(len(self.frame_entries), np.float64)
         for i, e in enumerate(self.frame_entries):
             if e["name"] == "trail" or (own and e["name"].startswith("waypoint")):
@@ -490,9 +496,7 @@ class ScanObservation:
         if self.lidar_map is not None:  # added after the checks: a refused input leaves it
             self.own_waypoint = self.lidar_map.update(pose, (gx, gy), ranges)
         if own:
-            wx, wy = self.own_waypoint
-            raw["waypoint_bearing_sin"], raw["waypoint_bearing_cos"] = bearing(wx - x, wy - y, yaw)
-            raw["waypoint_distance"] = math.hypot(wx - x, wy - y)
+            raw |= _waypoint_reading(self.own_waypoint, (x, y, yaw))
             for i, e in enumerate(self.frame_entries):
                 if e["name"].startswith("waypoint"):
                     values[i] = self._value(e, raw, ranges)
