@@ -3,6 +3,7 @@ the figures SFL published for its own method and the baselines.
 
     python -m benchmarks.jaxnav_levels --run RUN [--levels 10000] [--episodes-per-level 10]
         [--maze-seed 1000003] [--radius 0.25] [--chunk-levels 1000] [--seed 0]
+    python -m benchmarks.jaxnav_levels --pretrained NAME ...   # a shipped policy
     python -m benchmarks.jaxnav_levels --random ...   # the random agent (a smoke check)
 
 Levels: ``--levels`` levels of ``RobotJaxNav-v0`` (``jaxnav/envs/robot/jaxnav_levels.py``)
@@ -14,9 +15,10 @@ per-level success, the worst levels picked on A and measured on B. Each training
 run is evaluated on the same episodes (a greedy policy); the table gives each seed and their
 mean.
 
-A run trained on another env id keeps its observation settings (``SENSOR_FIELDS`` of its env,
-overrides included) on RobotJaxNav-v0's levels, robot, speeds and time limit, without the
-planner's waypoint: the benchmark is map-free, as JaxNav's robot. A run whose network reads
+A policy trained on another env id keeps its observation settings (``SENSOR_FIELDS`` of its
+env, overrides included) on RobotJaxNav-v0's levels, robot, speeds and time limit, without the
+planner's waypoint: the benchmark is map-free, as JaxNav's robot. A waypoint planned on the
+robot's own lidar map (``lidar_map``) is map-free and stays. A policy whose network reads
 observations of another size is refused in one line (exit 2), as is any bad flag.
 
 Levels are played ``--chunk-levels`` at a time (one compiled program, the last chunk padded),
@@ -39,7 +41,7 @@ import jax
 import numpy as np
 
 from benchmarks.common import machine_info, machine_text, write_results
-from jaxnav import run_dir
+from jaxnav import export, pretrained, run_dir
 from jaxnav.cli import HelpFormatter, Parser, UsageError, fail
 from jaxnav.evaluate import Policy, format_value, random_policy
 from jaxnav.evaluate.levels import CVAR_ALPHAS, run_level_episodes, sfl_summary
@@ -53,7 +55,10 @@ DEFAULT_OUT = Path("benchmarks/results/jaxnav_levels.json")
 SENSOR_FIELDS = (
     "frames", "num_lasers", "laser_fov", "laser_range", "obs_absolute", "obs_proximity",
     "obs_heading", "obs_goal_bearing", "goal_range", "obs_last_action", "obs_radius",
+    "trail_cell",
 )  # fmt: skip
+# carried too where lidar_map is set: a waypoint from the robot's own map is map-free
+OWN_MAP_FIELDS = ("lidar_map", "waypoint_distance", "waypoint_moves")
 # SFL's single-robot JaxNav results on its 10,000 held-out levels (the paper, Rutherford et al.
 # 2024, "No Regrets: Investigating and Improving Regret Approximations for Curriculum
 # Discovery", and its repository's evaluation data): success rate and CVaR-10%
@@ -74,6 +79,7 @@ def parser() -> argparse.ArgumentParser:
     )
     who = p.add_mutually_exclusive_group(required=True)
     who.add_argument("--run", type=Path, help="a trained run directory (its greedy policy)")
+    who.add_argument("--pretrained", metavar="NAME", help="a shipped policy (greedy)")
     who.add_argument("--random", action="store_true", help="the random agent")
     p.add_argument("--levels", type=int, default=10_000, help="held-out levels")
     p.add_argument("--episodes-per-level", type=int, default=10, help="per level and key")
@@ -108,14 +114,20 @@ def check_args(args: argparse.Namespace) -> None:
     check_output_file(args.out.with_suffix(".md"), "--out (markdown)")
 
 
-def sensor_overrides(run: Path) -> dict[str, Any]:
-    """The run's observation settings (``SENSOR_FIELDS``) as RobotJaxNav-v0 overrides;
-    ``ValueError`` if the run's env is no robot env."""
-    config = run_dir.load_config(run)
-    trained = env_config(config.env, **config.env_kwargs)
-    if not all(hasattr(trained, f) for f in SENSOR_FIELDS):
-        raise ValueError(f"--run {run}: trained on {config.env}, not a robot env")
-    return {f: getattr(trained, f) for f in SENSOR_FIELDS}
+def sensor_overrides(env_id: str, env_kwargs: dict[str, Any], source: str) -> dict[str, Any]:
+    """The observation settings (``SENSOR_FIELDS``, and ``OWN_MAP_FIELDS`` with a lidar map)
+    of a policy trained on ``env_id`` with ``env_kwargs``, as RobotJaxNav-v0 overrides;
+    ``ValueError`` naming ``source`` if that env is no robot env or its waypoint comes from the
+    maze's map."""
+    trained = dataclasses.asdict(env_config(env_id, **env_kwargs))
+    if not all(f in trained for f in SENSOR_FIELDS):
+        raise ValueError(f"{source}: trained on {env_id}, not a robot env")
+    if trained["waypoint_distance"] and not trained["lidar_map"]:
+        raise ValueError(
+            f"{source}: reads a waypoint planned on the maze's map; the benchmark is map-free"
+        )
+    own_map = OWN_MAP_FIELDS if trained["lidar_map"] else ()
+    return {f: trained[f] for f in (*SENSOR_FIELDS, *own_map)}
 
 
 def policies(args: argparse.Namespace, env_kwargs: dict[str, Any]) -> tuple[Any, Any, Any, Any]:
@@ -124,9 +136,25 @@ def policies(args: argparse.Namespace, env_kwargs: dict[str, Any]) -> tuple[Any,
     if args.random:
         env, params = make(ENV, **env_kwargs)
         return env, params, (lambda p: random_policy(env.num_actions)), None
-    kwargs = {**sensor_overrides(args.run), **env_kwargs}
-    _, trainer, seed_params = run_dir.load_run_on(args.run, ENV, kwargs)
+    if args.pretrained is not None:
+        policy = pretrained.load(args.pretrained)
+        meta, source = policy.metadata, f"--pretrained {args.pretrained}"
+        kwargs = sensor_overrides(meta["env_id"], meta["env_kwargs"], source) | env_kwargs
+        trainer, seed_params = export.to_trainer(policy, ENV, kwargs)
+    else:
+        config = run_dir.load_config(args.run)
+        kwargs = sensor_overrides(config.env, config.env_kwargs, f"--run {args.run}")
+        kwargs |= env_kwargs
+        _, trainer, seed_params = run_dir.load_run_on(args.run, ENV, kwargs)
     return trainer.env, trainer.env_params, trainer.greedy_policy, seed_params
+
+
+def policy_name(args: argparse.Namespace) -> str:
+    if args.random:
+        return "the random agent"
+    if args.pretrained is not None:
+        return f"shipped policy {args.pretrained} (greedy)"
+    return f"run {args.run} (greedy)"
 
 
 def chunk_program(
@@ -237,7 +265,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     config = dataclasses.asdict(env.config)
     result = {
         "env": ENV,
-        "policy": "the random agent" if args.random else f"run {args.run} (greedy)",
+        "policy": policy_name(args),
         "levels": args.levels,
         "episodes_per_level": args.episodes_per_level,
         "maze_seed": args.maze_seed,

@@ -309,8 +309,8 @@ def test_benchmark_runs_a_policy_of_another_env_and_refuses_other_inputs(tmp_pat
     config = result["env_config"]  # the run's sensors on JaxNav's levels and robot
     assert (config["num_lasers"], config["laser_fov"], config["maze"]) == (7, 180.0, "jaxnav")
     assert config["radius"] == 0.25 and config["waypoint_distance"] == 0.0
-    # a policy that reads a planner's waypoint: its observations are larger, refused
+    # a policy that reads a waypoint planned on the maze: not map-free, refused
     capsys.readouterr()
     assert benchmark_main(["--run", str(with_waypoint), *tiny]) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "do not fit the run's network" in err
+    assert err.count("\n") == 1 and "the benchmark is map-free" in err
