@@ -72,7 +72,9 @@ def record(
         ranges = lambda s: env.sensor_ranges(s, env_params)  # noqa: E731
         out["ranges"] = jax.vmap(jax.vmap(ranges))(out["states"])
         if has_waypoint(env):  # [T+1, N, 2] the planner's point the policy reads
-            point = lambda s: env.waypoint(s.pose, s.goal, s.layout, env_params)  # noqa: E731
+            point = lambda s: env.read_waypoint(  # noqa: E731
+                s.pose, s.goal, s.layout, s.own_map, env_params
+            )
             out["waypoints"] = jax.vmap(jax.vmap(point))(out["states"])
         return out
 
@@ -102,7 +104,7 @@ def _episode(env: Environment, env_params: EnvParams, out: dict[str, Any], i: in
 
 def has_waypoint(env: Environment) -> bool:
     """Whether ``env``'s observation holds a waypoint (``RobotNav``'s ``waypoint_distance``)."""
-    return bool(getattr(env, "waypoint_steps", 0)) and hasattr(env, "waypoint")
+    return bool(getattr(env, "waypoint_steps", 0)) and hasattr(env, "read_waypoint")
 
 
 def is_robot(ep: Episode) -> bool:

@@ -119,6 +119,24 @@ def test_observation_holds_no_unseen_wall(tmp):
     assert not np.array_equal(frames(OPEN, False), frames(WALLED, False))
 
 
+def test_a_drawn_episode_shows_the_waypoint_the_policy_reads(tmp):
+    """In the walled room the maze's waypoint goes round the unseen wall; the one drawn is the
+    own map's, straight at the goal."""
+    from jaxnav import render
+
+    env, params = maze_env(WALLED, tmp, lidar_map=0.25)
+    pose, goal = jnp.array([[1.5, 3.5, 0.0]]), jnp.array([9.5, 3.5])
+    obs, state = jax.vmap(env.reset_to, (None, None, 0, None))(
+        jax.random.key(0), params, pose, goal
+    )
+    (ep,) = render.record(env, params, lambda key, obs: jnp.zeros(obs.shape[:1], int), obs, state)
+    first = jax.tree.map(lambda x: x[0], state)
+    own = env.own_waypoint(first.pose, first.goal, first.own_map)
+    maze = env.waypoint(first.pose, first.goal, first.layout, params)
+    np.testing.assert_allclose(ep["waypoint"][0], own)
+    assert abs(float(own[1]) - 3.5) < 0.3 < abs(float(maze[1]) - 3.5)
+
+
 @pytest.mark.slow  # whole episodes of the shipped 1024-512-256 policy
 def test_waypoint_policy_leaves_a_dead_end(tmp):
     """The shipped waypoint policy, its waypoint from its own map: round a dead end that the

@@ -1155,6 +1155,20 @@ class RobotNav(Environment[RobotState, RobotParams]):
         use_goal = (known[row, col] == 0) | (known[start[0], start[1]] == FAR_STEPS)
         return jnp.where(use_goal, goal, centre)
 
+    def read_waypoint(
+        self,
+        pose: jax.Array,
+        goal: jax.Array,
+        layout: jax.Array,
+        own_map: lidar_map.MapState | None,
+        params: RobotParams,
+    ) -> jax.Array:
+        """The waypoint the observation holds: ``own_waypoint`` on the robot's own map where
+        there is one (``lidar_map``), else ``waypoint`` on the maze's."""
+        if own_map is None:
+            return self.waypoint(pose, goal, layout, params)
+        return self.own_waypoint(pose, goal, own_map)
+
     @property
     def _map_args(self) -> tuple[jax.Array, float, float]:
         """``lidar_map.start`` and ``observe``'s arguments after the ranges."""
@@ -1202,10 +1216,7 @@ class RobotNav(Environment[RobotState, RobotParams]):
         if self.config.obs_goal_bearing:
             parts.append(_bearing(goal - pose[:2], pose[2]))
         if self.waypoint_steps:
-            if own_map is None:
-                to_waypoint = self.waypoint(pose, goal, layout, params) - pose[:2]
-            else:
-                to_waypoint = self.own_waypoint(pose, goal, own_map) - pose[:2]
+            to_waypoint = self.read_waypoint(pose, goal, layout, own_map, params) - pose[:2]
             parts.append(_bearing(to_waypoint, pose[2]))
             parts.append(jnp.minimum(jnp.linalg.norm(to_waypoint) / c.laser_range, 1.0)[None])
         if c.obs_last_action:
