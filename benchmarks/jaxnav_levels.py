@@ -3,7 +3,7 @@ the figures SFL published for its own method and the baselines.
 
     python -m benchmarks.jaxnav_levels --run RUN [--levels 10000] [--episodes-per-level 10]
         [--maze-seed 1000003] [--radius 0.25] [--chunk-levels 1000] [--seed 0]
-    python -m benchmarks.jaxnav_levels --pretrained NAME ...   # a shipped policy
+    python -m benchmarks.jaxnav_levels --pretrained NAME|FILE.npz ...   # an exported policy
     python -m benchmarks.jaxnav_levels --random ...   # the random agent (a smoke check)
 
 Levels: ``--levels`` levels of ``RobotJaxNav-v0`` (``jaxnav/envs/robot/jaxnav_levels.py``)
@@ -79,7 +79,9 @@ def parser() -> argparse.ArgumentParser:
     )
     who = p.add_mutually_exclusive_group(required=True)
     who.add_argument("--run", type=Path, help="a trained run directory (its greedy policy)")
-    who.add_argument("--pretrained", metavar="NAME", help="a shipped policy (greedy)")
+    who.add_argument(
+        "--pretrained", metavar="NAME", help="a shipped policy or an exported npz (greedy)"
+    )
     who.add_argument("--random", action="store_true", help="the random agent")
     p.add_argument("--levels", type=int, default=10_000, help="held-out levels")
     p.add_argument("--episodes-per-level", type=int, default=10, help="per level and key")
@@ -137,7 +139,7 @@ def policies(args: argparse.Namespace, env_kwargs: dict[str, Any]) -> tuple[Any,
         env, params = make(ENV, **env_kwargs)
         return env, params, (lambda p: random_policy(env.num_actions)), None
     if args.pretrained is not None:
-        policy = pretrained.load(args.pretrained)
+        policy = pretrained.load_source(args.pretrained, f"--pretrained {args.pretrained}")
         meta, source = policy.metadata, f"--pretrained {args.pretrained}"
         kwargs = sensor_overrides(meta["env_id"], meta["env_kwargs"], source) | env_kwargs
         trainer, seed_params = export.to_trainer(policy, ENV, kwargs)
@@ -153,7 +155,7 @@ def policy_name(args: argparse.Namespace) -> str:
     if args.random:
         return "the random agent"
     if args.pretrained is not None:
-        return f"shipped policy {args.pretrained} (greedy)"
+        return f"policy {args.pretrained} (greedy)"
     return f"run {args.run} (greedy)"
 
 

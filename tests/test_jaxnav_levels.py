@@ -314,3 +314,31 @@ def test_benchmark_runs_a_policy_of_another_env_and_refuses_other_inputs(tmp_pat
     assert benchmark_main(["--run", str(with_waypoint), *tiny]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "the benchmark is map-free" in err
+
+
+def test_benchmark_keeps_a_waypoint_from_the_robots_own_map(tmp_path, capsys):
+    """An exported policy whose waypoint comes from its own lidar map is map-free: it runs on
+    the levels with that map; the same network reading the maze's waypoint is refused."""
+    from jaxnav import export
+
+    kwargs = {"backend": "kinematic", "num_layouts": 2, "random_size": 5, "num_lasers": 32}
+    kwargs |= {"laser_fov": 360.0, "waypoint_distance": 1.0}
+    files = {}
+    for name, own in (("own", {"lidar_map": 0.25}), ("maze", {})):
+        config = TrainConfig.for_env("RobotRandom-v0", env_kwargs=kwargs | own, hidden_sizes=(8,))
+        trainer = Trainer(config)
+        params = trainer.network.init(jax.random.key(0), jnp.zeros((1, trainer.obs_size)))
+        arrays = export.policy_arrays(trainer.network, params)
+        files[name] = tmp_path / f"{name}.npz"
+        export.write_policy(arrays, export.policy_metadata(trainer, {}), files[name], "npz")
+    out = tmp_path / "r.json"
+    tiny = ["--levels", "2", "--episodes-per-level", "1", "--out", str(out)]
+    assert benchmark_main(["--pretrained", str(files["own"]), *tiny]) == 0
+    config = json.loads(out.read_text())["env_config"]
+    assert (config["lidar_map"], config["waypoint_distance"], config["maze"]) == (
+        0.25, 1.0, "jaxnav"
+    )  # fmt: skip
+    capsys.readouterr()
+    assert benchmark_main(["--pretrained", str(files["maze"]), *tiny]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "the benchmark is map-free" in err

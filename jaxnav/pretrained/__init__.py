@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 from pathlib import Path
 from typing import Any
 
@@ -59,3 +60,15 @@ def load(name: str) -> Policy:
     if e.get("sha256") and sha256(file) != e["sha256"]:
         raise ValueError(f"{file}: sha256 differs from the manifest's; the file was changed")
     return Policy.load(file)
+
+
+def load_source(source: str, what: str) -> Policy:
+    """A shipped policy by name, or an exported npz file by path (``source``); ``ValueError``
+    naming ``what`` (the flag or field that gave it) if it is neither."""
+    if os.path.exists(source) or source.endswith(".npz"):
+        if not os.path.isfile(source):
+            raise ValueError(f"{what}: no such policy file")
+        return Policy.load(source)
+    if source in names():
+        return load(source)
+    raise ValueError(f"{what}: neither an npz file nor a shipped policy ({', '.join(names())})")

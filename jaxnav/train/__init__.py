@@ -30,7 +30,6 @@ from jaxnav import backend, pretrained, sharding
 from jaxnav.agents import dqn
 from jaxnav.algos.base import LossFn, ProgramLayout, TrainState, Transitions
 from jaxnav.config import HPARAMS, TrainConfig
-from jaxnav.deploy.policy import Policy
 from jaxnav.registration import make
 from jaxnav.sharding import ENVS, SEEDS
 from jaxnav.train import curriculum
@@ -239,17 +238,7 @@ class Trainer:
         name = self.config.init_from
         if not name:
             return None
-        if os.path.exists(name) or name.endswith(".npz"):
-            if not os.path.isfile(name):
-                raise ValueError(f"init_from={name!r}: no such policy file")
-            policy = Policy.load(name)
-        elif name in pretrained.names():
-            policy = pretrained.load(name)
-        else:
-            raise ValueError(
-                f"init_from={name!r}: neither an npz file nor a shipped policy "
-                f"({', '.join(pretrained.names())})"
-            )
+        policy = pretrained.load_source(name, f"init_from={name!r}")
         c, net = self.config, policy.network
         theirs = {k: net.get(k, 0) for k in ("hidden_sizes", "dueling", "layer_norm", "memory")}
         ours = {k: getattr(c, k) for k in theirs}
