@@ -5,7 +5,6 @@ waypoint at every step of whole episodes; ``ScanObservation`` and ``Navigator`` 
 
 from __future__ import annotations
 
-import copy
 import functools
 import math
 import os
@@ -24,7 +23,6 @@ from jaxnav import export, pretrained
 from jaxnav.deploy import lidar_map as deploy_map
 from jaxnav.deploy.lidar_map import LidarMap
 from jaxnav.deploy.navigator import Navigator
-from jaxnav.deploy.policy import Policy
 from jaxnav.deploy.sensors import LaserScan, ScanObservation
 from jaxnav.envs.robot import layout
 from jaxnav.envs.robot import lidar_map as env_map
@@ -121,19 +119,19 @@ def test_the_map_and_waypoint_are_the_envs_over_whole_episodes(maze, trap):
 
 @pytest.mark.slow  # whole episodes of the shipped 1024-512-256 policy
 def test_a_lidar_map_policy_runs_map_free_and_acts_as_in_the_simulator(trap):
-    """robotnav-sizes (trained with the maze's waypoint; the same observation with its own
-    map's) run by a ``Navigator`` with lidar-map metadata and no map, fed the env's ranges and
-    poses: round the dead end to the goal, the env's own-map waypoint and the policy's action
-    on the env's observation at every step."""
-    policy = pretrained.load("robotnav-sizes")
-    overrides = {"maze_file": trap, "lidar_map": 0.25, "radius_range": None, "radius": 0.15}
+    """The shipped map-free policy (robotnav-mapfree) run by a ``Navigator`` with no map, fed
+    the env's ranges and poses: round the dead end to the goal, the env's own-map waypoint and
+    the policy's action on the env's observation at every step."""
+    policy = pretrained.load("robotnav-mapfree")
+    overrides = {"maze_file": trap, "radius_range": None, "radius": 0.15}
     env_id, kwargs = export.env_for(policy, "RobotMaze-v0", overrides)
     env, params = jaxnav.make(env_id, **kwargs)
-    meta = copy.deepcopy(policy.metadata)
-    meta["sensors"] = env.sensor_layout()
-    assert meta["sensors"]["lidar_map_m"] == 0.25
-    assert env.observation_layout(params)["entries"] == meta["observation"]["entries"]
-    nav = Navigator(Policy(policy.arrays, meta))
+    sensors = env.sensor_layout()
+    for k in ("lidar_map_m", "lidar_map_cells", "lidar_map_sweeps", "waypoint_distance_m"):
+        assert policy.metadata["sensors"][k] == sensors[k]
+    assert sensors["lidar_map_m"] == 0.25
+    assert env.observation_layout(params)["entries"] == policy.metadata["observation"]["entries"]
+    nav = Navigator(policy)
     assert nav.map is None and nav.planner is None and nav.uses_lidar_map
     reset_to, step, lasers = jax.jit(env.reset_to), jax.jit(env.step_env), jax.jit(env.lasers)
     own_waypoint = jax.jit(env.own_waypoint)
