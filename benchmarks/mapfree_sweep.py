@@ -161,12 +161,12 @@ ROWS: list[tuple[str, str, dict[str, Any], dict[str, Any]]] = [
         {**MIXED_GOAL, "trail_cell": 0.5, "lidar_map": 0.25},
         {"init_from": "robotnav-sizes", "total_timesteps": 104_857_600},
     ),
-    # row 20 for half the preset's env steps
+    # row 20 for twice the env steps
     (
-        "row 19 fine-tuned from robotnav-sizes, 419M env steps",
+        "row 19 fine-tuned from robotnav-sizes, 210M env steps",
         "RobotNav-v0",
         {**MIXED_GOAL, "trail_cell": 0.5, "lidar_map": 0.25},
-        {"init_from": "robotnav-sizes", "total_timesteps": 419_430_400},
+        {"init_from": "robotnav-sizes", "total_timesteps": 209_715_200},
     ),
 ]
 
