@@ -253,7 +253,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             for k in (key_a, key_b)
         ]
         row = sfl_summary(*outcomes, args.levels, CVAR_ALPHAS)
-        row["name"] = "random" if args.random else f"seed {s}"
+        row["name"] = "random" if args.random else args.pretrained or f"seed {s}"
         rows.append(row)
         print(
             f"{row['name']}: success {row['success_rate']:.3f}, CVaR-10% {row['cvar_10']:.3f},"
