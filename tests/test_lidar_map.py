@@ -119,6 +119,7 @@ def test_observation_holds_no_unseen_wall(tmp):
     assert not np.array_equal(frames(OPEN, False), frames(WALLED, False))
 
 
+@pytest.mark.slow  # compiles a whole recorded episode with the map
 def test_a_drawn_episode_shows_the_waypoint_the_policy_reads(tmp):
     """In the walled room the maze's waypoint goes round the unseen wall; the one drawn is the
     own map's, straight at the goal."""
