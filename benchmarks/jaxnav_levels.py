@@ -80,7 +80,7 @@ def parser() -> argparse.ArgumentParser:
     who = p.add_mutually_exclusive_group(required=True)
     who.add_argument("--run", type=Path, help="a trained run directory (its greedy policy)")
     who.add_argument(
-        "--pretrained", metavar="NAME", help="a shipped policy or an exported npz (greedy)"
+        "--pretrained", metavar="NAME|FILE", help="a shipped policy or an exported npz (greedy)"
     )
     who.add_argument("--random", action="store_true", help="the random agent")
     p.add_argument("--levels", type=int, default=10_000, help="held-out levels")
@@ -139,8 +139,9 @@ def policies(args: argparse.Namespace, env_kwargs: dict[str, Any]) -> tuple[Any,
         env, params = make(ENV, **env_kwargs)
         return env, params, (lambda p: random_policy(env.num_actions)), None
     if args.pretrained is not None:
-        policy = pretrained.load_source(args.pretrained, f"--pretrained {args.pretrained}")
-        meta, source = policy.metadata, f"--pretrained {args.pretrained}"
+        source = f"--pretrained {args.pretrained}"
+        policy = pretrained.load_source(args.pretrained, source)
+        meta = policy.metadata
         kwargs = sensor_overrides(meta["env_id"], meta["env_kwargs"], source) | env_kwargs
         trainer, seed_params = export.to_trainer(policy, ENV, kwargs)
     else:
