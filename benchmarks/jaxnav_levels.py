@@ -15,8 +15,8 @@ per-level success, the worst levels picked on A and measured on B. Each training
 run is evaluated on the same episodes (a greedy policy); the table gives each seed and their
 mean.
 
-A policy trained on another env id keeps its observation settings (``SENSOR_FIELDS`` of its
-env, overrides included) on RobotJaxNav-v0's levels, robot, speeds and time limit, without the
+A policy trained on another env id keeps its observation settings (``sensor_overrides``,
+overrides included) on RobotJaxNav-v0's levels, robot, speeds and time limit, without the
 planner's waypoint: the benchmark is map-free, as JaxNav's robot. A waypoint planned on the
 robot's own lidar map (``lidar_map``) is map-free and stays. A policy whose network reads
 observations of another size is refused in one line (exit 2), as is any bad flag.
@@ -51,14 +51,6 @@ from jaxnav.safe_io import check_output_file
 
 ENV = "RobotJaxNav-v0"
 DEFAULT_OUT = Path("benchmarks/results/jaxnav_levels.json")
-# the env settings that shape a policy's observation, carried from the run's env
-SENSOR_FIELDS = (
-    "frames", "num_lasers", "laser_fov", "laser_range", "obs_absolute", "obs_proximity",
-    "obs_heading", "obs_goal_bearing", "goal_range", "obs_last_action", "obs_radius",
-    "trail_cell",
-)  # fmt: skip
-# carried too where lidar_map is set: a waypoint from the robot's own map is map-free
-OWN_MAP_FIELDS = ("lidar_map", "waypoint_distance", "waypoint_moves")
 # SFL's single-robot JaxNav results on its 10,000 held-out levels (the paper, Rutherford et al.
 # 2024, "No Regrets: Investigating and Improving Regret Approximations for Curriculum
 # Discovery", and its repository's evaluation data): success rate and CVaR-10%
@@ -117,19 +109,19 @@ def check_args(args: argparse.Namespace) -> None:
 
 
 def sensor_overrides(env_id: str, env_kwargs: dict[str, Any], source: str) -> dict[str, Any]:
-    """The observation settings (``SENSOR_FIELDS``, and ``OWN_MAP_FIELDS`` with a lidar map)
-    of a policy trained on ``env_id`` with ``env_kwargs``, as RobotJaxNav-v0 overrides;
-    ``ValueError`` naming ``source`` if that env is no robot env or its waypoint comes from the
-    maze's map."""
+    """The settings that shape the observation of a policy trained on ``env_id`` with
+    ``env_kwargs`` (``run_dir.OBSERVATION_FIELDS``, and ``lidar_map`` where set: a waypoint
+    from the robot's own map is map-free), as RobotJaxNav-v0 overrides; ``ValueError`` naming
+    ``source`` if that env is no robot env or its waypoint comes from the maze's map."""
     trained = dataclasses.asdict(env_config(env_id, **env_kwargs))
-    if not all(f in trained for f in SENSOR_FIELDS):
+    if "lidar_map" not in trained:
         raise ValueError(f"{source}: trained on {env_id}, not a robot env")
     if trained["waypoint_distance"] and not trained["lidar_map"]:
         raise ValueError(
             f"{source}: reads a waypoint planned on the maze's map; the benchmark is map-free"
         )
-    own_map = OWN_MAP_FIELDS if trained["lidar_map"] else ()
-    return {f: trained[f] for f in (*SENSOR_FIELDS, *own_map)}
+    own_map = {"lidar_map": trained["lidar_map"]} if trained["lidar_map"] else {}
+    return {f: trained[f] for f in run_dir.OBSERVATION_FIELDS if f in trained} | own_map
 
 
 def policies(args: argparse.Namespace, env_kwargs: dict[str, Any]) -> tuple[Any, Any, Any, Any]:
