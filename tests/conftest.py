@@ -19,6 +19,7 @@ import pytest  # noqa: E402
 
 import jaxnav  # noqa: E402
 from jaxnav.config import TrainConfig  # noqa: E402
+from jaxnav.envs.robot.env import GENERALIST_SENSORS  # noqa: E402
 from jaxnav.train import Trainer  # noqa: E402
 
 MAZE_SIZE = 7
@@ -68,14 +69,7 @@ def random_maze():
 
 # ---------------------------------------------------------------------------- training
 # the generalist's sensors with a waypoint: what the lidar map tests run a robot env with
-LIDAR_SENSORS = {
-    "num_lasers": 32,
-    "laser_fov": 360.0,
-    "laser_range": 3.5,
-    "obs_absolute": False,
-    "waypoint_distance": 1.0,
-    "backend": "kinematic",
-}
+LIDAR_SENSORS = {**GENERALIST_SENSORS, "backend": "kinematic"}
 # a U whose bottom stands between the start (S) and the goal (G): the straight line from one to
 # the other is a dead end
 TRAP_MAZE = """cell_size: 0.5
