@@ -432,9 +432,9 @@ def drop_closed_loop_errors() -> Any:
 def quiet_write_faults() -> Iterator[None]:
     """Within the block, orbax's (absl's) log records of a refused write are held back, and
     the closed-event-loop tracebacks tensorstore reports after it are dropped; every other
-    record and error is shown as before. When ``write_refused`` reported a fault (it keeps
-    the hook: the leftover writes end after the command's last line) the held records are
-    dropped; otherwise they are shown as they would have been."""
+    record and error is shown as before. When ``write_refused`` reported a fault, the filter
+    and hook stay (the leftover writes log and fail after the command's last line) and the
+    held records are dropped; otherwise they are shown as they would have been."""
     absl_logger = logging.getLogger("absl")
     hold = HoldWriteFaults()
     absl_logger.addFilter(hold)
@@ -443,8 +443,8 @@ def quiet_write_faults() -> Iterator[None]:
     try:
         yield
     finally:
-        absl_logger.removeFilter(hold)
         if sys.unraisablehook is hook:  # no write fault reported: nothing is hidden
+            absl_logger.removeFilter(hold)
             sys.unraisablehook = previous
             for record in hold.held:
                 absl_logger.handle(record)
