@@ -168,6 +168,14 @@ ROWS: list[tuple[str, str, dict[str, Any], dict[str, Any]]] = [
         {**MIXED_GOAL, "trail_cell": 0.5, "lidar_map": 0.25},
         {"init_from": "robotnav-sizes", "total_timesteps": 209_715_200},
     ),
+    # JaxNav's robot (0.25 m) lies past row 20's largest radius (0.245): robotnav-mapfree
+    # fine-tuned on robots of 0.15 m up to what a 0.5 m cell holds
+    (
+        "robotnav-mapfree fine-tuned at radius 0.15-0.249 m, 105M env steps",
+        "RobotNav-v0",
+        {**MIXED_GOAL, "trail_cell": 0.5, "lidar_map": 0.25, "radius_range": (0.15, 0.249)},
+        {"init_from": "robotnav-mapfree", "total_timesteps": 104_857_600},
+    ),
 ]
 
 
