@@ -29,6 +29,7 @@ def generalist_config(env_overrides=None, **overrides) -> TrainConfig:
     return TrainConfig.for_env("RobotMaze-v0", algo="pqn", **{**values, **overrides})
 
 
+@pytest.mark.slow  # compiles training of the shipped 1024-512-256 network
 @pytest.mark.parametrize("source", ["name", "npz file"])
 def test_a_run_from_a_shipped_policy_starts_with_its_weights(source):
     init = "robotnav-pqn" if source == "name" else str(pretrained.path("robotnav-pqn"))

@@ -192,6 +192,7 @@ def test_seeds_split_over_devices_compute_each_seed_alone():
             np.testing.assert_allclose(b[s], a, rtol=1e-6, atol=1e-6)
 
 
+@pytest.mark.slow  # compiles both implementations' forward and backward passes
 @pytest.mark.parametrize("dueling", [True, False], ids=["dueling", "plain"])
 def test_network_implementations_share_parameters_and_compute_alike(dueling):
     """Checkpoints and exports read one parameter tree whichever implementation trained it."""

@@ -109,11 +109,13 @@ def test_observation_holds_no_unseen_wall(tmp):
     def frames(text: str, own: bool):
         env, params = maze_env(text, tmp, lidar_map=0.25 if own else 0.0)
         obs, state = env.reset_to(jax.random.key(0), params, pose, goal)
-        out = [obs]
-        for a in actions:
-            obs, state, *_ = env.step(jax.random.key(0), state, a, params)
-            out.append(obs)
-        return np.stack(out)
+
+        def step(state, action):
+            obs, state, *_ = env.step(jax.random.key(0), state, action, params)
+            return state, obs
+
+        _, rest = jax.jit(lambda s: jax.lax.scan(step, s, jnp.array(actions)))(state)
+        return np.concatenate([np.asarray(obs)[None], np.asarray(rest)])
 
     np.testing.assert_array_equal(frames(OPEN, True), frames(WALLED, True))
     assert not np.array_equal(frames(OPEN, False), frames(WALLED, False))

@@ -110,6 +110,7 @@ def test_the_navigator_reaches_goals_as_often_as_the_envs_evaluation_with_a_map(
     assert abs(success(driven) - success(own)) <= TOLERANCE, (own, driven)
 
 
+@pytest.mark.slow  # whole episodes on 16 levels, stepped one at a time from numpy
 def test_the_navigator_reaches_goals_as_often_as_the_envs_evaluation_without_a_map():
     """robotjaxnav-mapfree (no waypoint; reads its radius and last action) on 16 JaxNav levels
     with the robot's radius drawn per episode: one Navigator per episode with that radius."""

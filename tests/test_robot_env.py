@@ -559,6 +559,7 @@ def test_map_free_odometry_fields_read_the_goal_far_the_last_action_and_the_radi
         jaxnav.make("RobotSimple-v0", backend="kinematic", goal_range=-1.0)
 
 
+@pytest.mark.slow  # builds the generalist's whole maze bank
 def test_a_drawn_radius_fits_the_mazes_narrowest_gap():
     """radius_range is capped per maze at half its narrowest gap less FIT_MARGIN: 0.5 m
     corridors hold robots up to 0.15 m, JaxNav levels' 1 m gaps up to the range's top."""

@@ -72,6 +72,7 @@ def test_a_corner_between_two_beams_blocks_forward_a_straight_wall_as_near_does_
     assert not shield.blocked(scan(env, params, shield, wall))[0]
 
 
+@pytest.mark.slow  # rolls out whole episodes to collect observations
 def test_numpy_and_jax_block_the_same_moves_on_the_envs_observations(robot):
     env, params, shield = robot
     keys = jax.random.split(jax.random.key(0), 64)

@@ -96,6 +96,7 @@ def steering_policy(bearing: int, num_actions: int) -> Policy:
     return policy
 
 
+@pytest.mark.slow  # whole episodes of a planner on every layout
 @pytest.mark.parametrize(
     "env_id, overrides, bearing",
     [
