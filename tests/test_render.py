@@ -12,6 +12,7 @@ import jaxnav
 from jaxnav import render
 
 RIGHT, FORWARD = 3, 0
+pytestmark = pytest.mark.xdist_group("render")  # one worker records the shared episodes once
 
 
 def constant(action: int):
