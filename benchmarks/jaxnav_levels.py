@@ -174,10 +174,12 @@ def evaluate_levels(
     num_levels: int,
     episodes_per_level: int,
     chunk_levels: int,
+    progress: Callable[[int], None] | None = None,
 ) -> dict[str, np.ndarray]:
     """Per-episode outcomes of every level ``0 .. num_levels - 1`` of the env's bank, played
     ``chunk_levels`` at a time by ``program`` (``chunk_program``; the last chunk padded with
-    level 0, whose padding episodes are dropped)."""
+    level 0, whose padding episodes are dropped); ``progress`` gets the levels done after each
+    chunk."""
     chunk = min(chunk_levels, num_levels)
     parts: list[dict[str, np.ndarray]] = []
     for start in range(0, num_levels, chunk):
@@ -187,6 +189,8 @@ def evaluate_levels(
         out = jax.device_get(program(policy_params, key, levels))
         keep = np.arange(chunk * episodes_per_level) % chunk < valid
         parts.append({k: np.asarray(v)[keep] for k, v in out.items()})
+        if progress is not None:
+            progress(start + valid)
     return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
 
 
@@ -241,10 +245,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     t0 = time.perf_counter()
     for s in range(seeds):
         p = None if seed_params is None else jax.tree.map(lambda x, s=s: x[s], seed_params)
-        outcomes = [
-            evaluate_levels(program, p, k, args.levels, args.episodes_per_level, args.chunk_levels)
-            for k in (key_a, key_b)
-        ]
+        outcomes = []
+        for name, k in (("A", key_a), ("B", key_b)):
+            label = f"seed {s}, key {name}" if seeds > 1 else f"key {name}"
+
+            def progress(done: int, label: str = label) -> None:
+                print(f"{label}: {done:,}/{args.levels:,} levels", file=sys.stderr, flush=True)
+
+            outcomes.append(
+                evaluate_levels(
+                    program, p, k, args.levels, args.episodes_per_level, args.chunk_levels, progress
+                )
+            )
         row = sfl_summary(*outcomes, args.levels, CVAR_ALPHAS)
         row["name"] = "random" if args.random else args.pretrained or f"seed {s}"
         rows.append(row)

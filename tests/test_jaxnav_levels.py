@@ -252,6 +252,8 @@ def test_benchmark_writes_the_table_for_the_random_agent(tmp_path, capsys):
     out = tmp_path / "jaxnav_levels.json"
     args = ["--random", "--levels", "5", "--episodes-per-level", "2", "--chunk-levels", "3"]
     assert benchmark_main([*args, "--out", str(out)]) == 0
+    progress = [f"key {k}: {n}/5 levels" for k in "AB" for n in (3, 5)]
+    assert capsys.readouterr().err.splitlines() == progress  # a line per chunk, on stderr
     result = json.loads(out.read_text())
     (row,) = result["rows"]
     assert row["levels"] == 5 and row["episodes"] == 20
