@@ -168,8 +168,8 @@ ROWS: list[tuple[str, str, dict[str, Any], dict[str, Any]]] = [
         {**MIXED_GOAL, "trail_cell": 0.5, "lidar_map": 0.25},
         {"init_from": "robotnav-sizes", "total_timesteps": 209_715_200},
     ),
-    # JaxNav's robot (0.25 m) lies past row 20's largest radius (0.245): robotnav-mapfree
-    # fine-tuned on robots of 0.15 m up to what a 0.5 m cell holds
+    # success falls with the radius and row 20 rarely draws large robots: robotnav-mapfree
+    # fine-tuned on radii from 0.15 m to just under half a 0.5 m cell
     (
         "robotnav-mapfree fine-tuned at radius 0.15-0.249 m, 105M env steps",
         "RobotNav-v0",
