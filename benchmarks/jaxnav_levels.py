@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -194,6 +195,11 @@ def evaluate_levels(
     return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
 
 
+def say_progress(label: str, total: int, done: int) -> None:
+    """A line on stderr: how many of ``total`` levels ``label``'s evaluation has played."""
+    print(f"{label}: {done:,}/{total:,} levels", file=sys.stderr, flush=True)
+
+
 def markdown(result: dict[str, Any]) -> str:
     """The table: each seed, their mean, and SFL's published figures."""
     lines = [
@@ -248,10 +254,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         outcomes = []
         for name, k in (("A", key_a), ("B", key_b)):
             label = f"seed {s}, key {name}" if seeds > 1 else f"key {name}"
-
-            def progress(done: int, label: str = label) -> None:
-                print(f"{label}: {done:,}/{args.levels:,} levels", file=sys.stderr, flush=True)
-
+            progress = functools.partial(say_progress, label, args.levels)
             outcomes.append(
                 evaluate_levels(
                     program, p, k, args.levels, args.episodes_per_level, args.chunk_levels, progress
