@@ -176,6 +176,13 @@ ROWS: list[tuple[str, str, dict[str, Any], dict[str, Any]]] = [
         {**MIXED_GOAL, "trail_cell": 0.5, "lidar_map": 0.25, "radius_range": (0.15, 0.249)},
         {"init_from": "robotnav-mapfree", "total_timesteps": 104_857_600},
     ),
+    # row 22's lever for the waypoint generalist: robotnav-sizes fine-tuned on large radii
+    (
+        "robotnav-sizes fine-tuned at radius 0.15-0.249 m, 105M env steps",
+        "RobotNav-v0",
+        {**MIXED_GOAL, "trail_cell": 0.5, "radius_range": (0.15, 0.249)},
+        {"init_from": "robotnav-sizes", "total_timesteps": 104_857_600},
+    ),
 ]
 
 
