@@ -61,8 +61,11 @@ MIXED_GOAL = {**MIXED, "radius_range": (0.1, 0.245), "goal_radius": 0.3}
 GENTLE = {"step_reward_start": -0.01, "step_reward_end": -0.02, "clearance_reward": 0.0}
 # the progress term as potential-based shaping for the preset's discount (0.99)
 POTENTIAL = {"progress_discount": 0.99}
-# row 20's seed 1 as `--rows 20 --seeds 0,1 --policies runs/row20` writes it
+# row 20's seed 1, where the command below writes it: rows 22 and 24 start from it
 ROW20_SEED1 = "runs/row20/row20_seed1.npz"
+MADE_BY = {
+    ROW20_SEED1: "python -m benchmarks.mapfree_sweep --rows 20 --seeds 0,1 --policies runs/row20"
+}
 # radii the held-out mazes are tested at when a row draws the robot's size
 HELD_OUT_RADII = (0.1, 0.15, 0.2)
 
@@ -397,11 +400,22 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError:
         print(f"--seeds {args.seeds!r}: give distinct seeds >= 0, e.g. 0,1,2", file=sys.stderr)
         return 2
+    trained = args.pretrained or args.trained
+    for i in indices:  # a missing start fails now, not after the rows before it trained
+        start = ROWS[i][3].get("init_from", "")
+        if trained is None and start in MADE_BY and not Path(start).is_file():
+            print(f"row {i} starts from {start}, not there: {MADE_BY[start]}", file=sys.stderr)
+            return 2
+    if args.policies is not None and trained is None:
+        try:  # before training, so that a bad folder costs no GPU time
+            args.policies.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            print(f"--policies {args.policies}: {e.strerror or e}", file=sys.stderr)
+            return 2
     machine = machine_info()
     rows = []
     for i in indices:
         print(f"row {i}: {ROWS[i][0]}", flush=True)
-        trained = args.pretrained or args.trained
         results = run_row(i, args.episodes, args.policies, trained, seeds, args.shielded)
         results = [r | {"machine": machine} for r in results]
         rows += results

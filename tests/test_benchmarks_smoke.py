@@ -352,7 +352,7 @@ def test_mapfree_sweep_tests_an_exported_row_without_training(tmp_path: Path, mo
 
 
 def test_mapfree_sweep_trains_seeds_together_and_reports_their_spread(
-    tmp_path: Path, monkeypatch
+    tmp_path: Path, monkeypatch, capsys
 ) -> None:
     from benchmarks import mapfree_sweep
     from jaxnav.config import TrainConfig
@@ -361,6 +361,13 @@ def test_mapfree_sweep_trains_seeds_together_and_reports_their_spread(
 
     assert mapfree_sweep.main(["--seeds", "1,1"]) == 2  # a seed twice
     assert mapfree_sweep.main(["--seeds", "-1"]) == 2
+    # a start another row writes, and a folder for policies that cannot be one: refused at once
+    monkeypatch.chdir(tmp_path)
+    assert mapfree_sweep.main(["--rows", "22"]) == 2
+    assert "--rows 20 --seeds 0,1 --policies runs/row20" in capsys.readouterr().err
+    (tmp_path / "file").write_text("")
+    assert mapfree_sweep.main(["--rows", "14", "--policies", "file/pol"]) == 2
+    assert capsys.readouterr().err.startswith("--policies file/pol: ")
     _, env_id, env_kwargs, _ = mapfree_sweep.ROWS[14]
     tiny = TrainConfig.for_env(
         env_id,
@@ -380,8 +387,7 @@ def test_mapfree_sweep_trains_seeds_together_and_reports_their_spread(
     monkeypatch.setattr(mapfree_sweep, "row_config", lambda index: tiny)
     suite = Family("held-out", "own", {"maze_seed": 1_000_003, "num_layouts": 4})
     monkeypatch.setattr(mapfree_sweep, "families", lambda config: [suite])
-    out, policies = tmp_path / "sweep.jsonl", tmp_path / "pol"
-    policies.mkdir()
+    out, policies = tmp_path / "sweep.jsonl", tmp_path / "runs" / "pol"  # made by the sweep
     argv = ["--rows", "14", "--seeds", "0,3", "--episodes", "4", "--out", str(out)]
     assert mapfree_sweep.main([*argv, "--policies", str(policies)]) == 0
     rows = [json.loads(line) for line in out.read_text().splitlines()]
