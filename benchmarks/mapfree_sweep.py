@@ -403,8 +403,9 @@ def main(argv: list[str] | None = None) -> int:
     trained = args.pretrained or args.trained
     for i in indices:  # a missing start fails now, not after the rows before it trained
         start = ROWS[i][3].get("init_from", "")
-        if trained is None and start in MADE_BY and not Path(start).is_file():
-            print(f"row {i} starts from {start}, not there: {MADE_BY[start]}", file=sys.stderr)
+        if trained is None and start.endswith(".npz") and not Path(start).is_file():
+            made_by = MADE_BY.get(start, "no command here writes it")
+            print(f"row {i} starts from {start}, not there: {made_by}", file=sys.stderr)
             return 2
     if args.policies is not None and trained is None:
         try:  # before training, so that a bad folder costs no GPU time
