@@ -2,7 +2,8 @@
 the figures SFL published for its own method and the baselines.
 
     python -m benchmarks.jaxnav_levels --run RUN [--levels 10000] [--episodes-per-level 10]
-        [--maze-seed 1000003] [--radius 0.25] [--chunk-levels 1000] [--seed 0]
+        [--maze-seed 1000003] [--radius 0.25] [--chunk-levels 1000] [--seed 0] \
+        [--policy trained|shielded]
     python -m benchmarks.jaxnav_levels --pretrained NAME|FILE.npz ...   # an exported policy
     python -m benchmarks.jaxnav_levels --random ...   # the random agent (a smoke check)
 
@@ -12,7 +13,8 @@ bank of seed 0 uses. Protocol (``jaxnav.evaluate.levels``): ``--episodes-per-lev
 of every level on key A and again on an independent key B (both from ``--seed``); success,
 collision and timeout rates over all episodes of both keys; CVaR-10% and CVaR-1% of the
 per-level success, the worst levels picked on A and measured on B. Each training seed of the
-run is evaluated on the same episodes (a greedy policy); the table gives each seed and their
+run is evaluated on the same episodes, greedy or, with ``--policy shielded``, through the lidar
+collision monitor (``jaxnav.evaluate.shielded_policy``); the table gives each seed and their
 mean.
 
 A policy trained on another env id keeps its observation settings (``sensor_overrides``,
@@ -44,7 +46,7 @@ import numpy as np
 from benchmarks.common import machine_info, machine_text, write_results
 from jaxnav import export, pretrained, run_dir
 from jaxnav.cli import HelpFormatter, Parser, UsageError, fail
-from jaxnav.evaluate import Policy, format_value, random_policy
+from jaxnav.evaluate import Policy, format_value, policy_maker, random_policy
 from jaxnav.evaluate.levels import CVAR_ALPHAS, run_level_episodes, sfl_summary
 from jaxnav.experiments import HELD_OUT_MAZE_SEED
 from jaxnav.registration import env_config, make
@@ -61,6 +63,7 @@ PUBLISHED = {
     "PLR": (0.967, 0.68),
     "ACCEL": (0.959, 0.59),
 }
+GREEDY = {"trained": "greedy", "shielded": "greedy, shielded"}
 COLUMNS = ("success_rate", "cvar_10", "cvar_1", "collision_rate", "timeout_rate")
 
 
@@ -85,6 +88,12 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--chunk-levels", type=int, default=1000, help="levels played at a time")
     p.add_argument("--seed", type=int, default=0, help="seed of the two evaluation keys")
     p.add_argument("--out", type=Path, default=DEFAULT_OUT, help="output JSON (and .md beside)")
+    p.add_argument(
+        "--policy",
+        choices=("trained", "shielded"),
+        default="trained",
+        help="greedy, or greedy through the lidar collision monitor",
+    )
     return p
 
 
@@ -103,6 +112,8 @@ def check_args(args: argparse.Namespace) -> None:
             raise ValueError(f"{name} {v}: must be an integer in [{lo}, {hi}]")
     if not 0 < args.radius < 0.5:
         raise ValueError(f"--radius {args.radius}: must be in (0, 0.5) m (a 1 m cell)")
+    if args.random and args.policy == "shielded":
+        raise ValueError("--policy shielded: shields a trained policy, not --random")
     if args.run is not None and not args.run.is_dir():
         raise ValueError(f"--run {args.run}: not a run directory")
     check_output_file(args.out)
@@ -142,15 +153,16 @@ def policies(args: argparse.Namespace, env_kwargs: dict[str, Any]) -> tuple[Any,
         kwargs = sensor_overrides(config.env, config.env_kwargs, f"--run {args.run}")
         kwargs |= env_kwargs
         _, trainer, seed_params = run_dir.load_run_on(args.run, ENV, kwargs)
-    return trainer.env, trainer.env_params, trainer.greedy_policy, seed_params
+    env, params = trainer.env, trainer.env_params
+    return env, params, policy_maker(args.policy, trainer, env, params), seed_params
 
 
 def policy_name(args: argparse.Namespace) -> str:
     if args.random:
         return "the random agent"
     if args.pretrained is not None:
-        return f"policy {args.pretrained} (greedy)"
-    return f"run {args.run} (greedy)"
+        return f"policy {args.pretrained} ({GREEDY[args.policy]})"
+    return f"run {args.run} ({GREEDY[args.policy]})"
 
 
 def chunk_program(

@@ -56,6 +56,13 @@ MIXED = {
 }
 # MIXED at JaxNav's goal radius, robots up to just under a 0.5 m cell's half (the validated bound)
 MIXED_GOAL = {**MIXED, "radius_range": (0.1, 0.245), "goal_radius": 0.3}
+# MIXED_GOAL with JaxNav's levels in their own 1 m cells (generators' jaxnav_coarse): radii
+# drawn to 0.35 m there, capped under half a cell (0.249 m) on the 0.5 m families
+COARSE_JAXNAV = {
+    **MIXED_GOAL,
+    "families": (*generators.FAMILIES, "jaxnav_coarse"),
+    "radius_range": (0.15, 0.35),
+}
 # a step penalty a tenth of the generalist's and no clearance term: a long search for the goal
 # then costs less than a crash (-10), so a policy unsure of its way has no reason to crash
 GENTLE = {"step_reward_start": -0.01, "step_reward_end": -0.02, "clearance_reward": 0.0}
@@ -188,12 +195,26 @@ ROWS: list[tuple[str, str, dict[str, Any], dict[str, Any]]] = [
         {**MIXED_GOAL, "trail_cell": 0.5, "radius_range": (0.15, 0.249)},
         {"init_from": "robotnav-sizes", "total_timesteps": 104_857_600},
     ),
-    # row 22 for twice the env steps
+    # row 22 for twice the env steps: the shipped robotnav-mapfree (row 22) for 105M more
     (
-        "row 20 seed 1 fine-tuned at radius 0.15-0.249 m, 210M env steps",
+        "robotnav-mapfree fine-tuned at radius 0.15-0.249 m, 105M env steps",
         "RobotNav-v0",
         {**MIXED_GOAL, "trail_cell": 0.5, "lidar_map": 0.25, "radius_range": (0.15, 0.249)},
-        {"init_from": ROW20_SEED1, "total_timesteps": 209_715_200},
+        {"init_from": "robotnav-mapfree", "total_timesteps": 104_857_600},
+    ),
+    # JaxNav's levels in their own 1 m cells: robots past 0.25 m there (row 23's lever, wider)
+    (
+        "robotnav-sizes fine-tuned with 1 m-cell JaxNav levels, radius 0.15-0.35 m, 105M",
+        "RobotNav-v0",
+        {**COARSE_JAXNAV, "trail_cell": 0.5},
+        {"init_from": "robotnav-sizes", "total_timesteps": 104_857_600},
+    ),
+    # the same bank for the map-free generalist
+    (
+        "robotnav-mapfree fine-tuned with 1 m-cell JaxNav levels, radius 0.15-0.35 m, 105M",
+        "RobotNav-v0",
+        {**COARSE_JAXNAV, "trail_cell": 0.5, "lidar_map": 0.25},
+        {"init_from": "robotnav-mapfree", "total_timesteps": 104_857_600},
     ),
 ]
 

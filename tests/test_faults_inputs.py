@@ -268,7 +268,8 @@ def test_robot_reset_to_refuses_a_pose_in_a_wall_or_off_the_arena():
     bank = params.bank
     rows = bank.grid.shape[1]
     r, c = (int(v) for v in np.argwhere(np.asarray(bank.grid[0]))[0])
-    inside = [(c + 0.5) * bank.cell_size, (rows - 1 - r + 0.5) * bank.cell_size]
+    cs = float(bank.cell_size[0])
+    inside = [(c + 0.5) * cs, (rows - 1 - r + 0.5) * cs]
     free_xy = np.asarray(bank.free_xy[0, :2], np.float64)
     width, height = bank.size_m
     key = jax.random.key(0)

@@ -18,7 +18,7 @@ from benchmarks.jaxnav_levels import main as benchmark_main
 from jaxnav import run_dir
 from jaxnav.config import TrainConfig
 from jaxnav.envs.maze_algorithms import fill_pockets, region_labels
-from jaxnav.envs.robot import jaxnav_levels
+from jaxnav.envs.robot import generators, jaxnav_levels
 from jaxnav.evaluate.levels import (
     cvar_two_key,
     level_success,
@@ -92,6 +92,20 @@ def test_held_out_levels_are_not_training_levels():
     training, held_out = busy(0), busy(HELD_OUT_MAZE_SEED)
     assert len(training) > 1000 and len(held_out) > 1000
     assert not training & held_out
+
+
+def test_the_coarse_family_is_a_level_in_one_metre_cells_of_the_banks_shape():
+    """``jaxnav_coarse`` in a bank of 20 x 20 cells of 0.5 m: a maze of 1 m cells, the level
+    in the lower-left 10 x 10 (its boundary the arena's or a wall ring), walls elsewhere."""
+    for i in range(40):
+        maze = generators.family_maze(0, i, ("jaxnav_coarse",))
+        assert maze.cell_size == 1.0 and maze.grid.shape == (20, 20)
+        assert maze.grid[:10].all() and maze.grid[:, 10:].all()  # the padding
+        free = np.argwhere(~maze.grid)
+        assert np.ptp(free, axis=0).max() < jaxnav_levels.INTERIOR  # within a 9 x 9 level
+        assert region_labels(maze.grid).max() == 1 and len(free) >= 2
+    with pytest.raises(ValueError, match="jaxnav_coarse needs 18 x 18 cells or more"):
+        generators.family_maze(0, 0, ("jaxnav_coarse",), rows=16, cols=16)
 
 
 def test_a_level_needing_more_wall_slots_is_refused():
@@ -245,6 +259,8 @@ def test_benchmark_refuses_bad_flags_in_one_line(tmp_path, capsys):
     assert "--maze-seed 0" in capsys.readouterr().err
     assert benchmark_main(["--run", str(tmp_path / "none"), "--out", out]) == 2
     assert "not a run directory" in capsys.readouterr().err
+    assert benchmark_main(["--random", "--policy", "shielded", "--out", out]) == 2
+    assert "--policy shielded: shields a trained policy" in capsys.readouterr().err
 
 
 @pytest.mark.slow
@@ -311,6 +327,10 @@ def test_benchmark_runs_a_policy_of_another_env_and_refuses_other_inputs(tmp_pat
     config = result["env_config"]  # the run's sensors on JaxNav's levels and robot
     assert (config["num_lasers"], config["laser_fov"], config["maze"]) == (7, 180.0, "jaxnav")
     assert config["radius"] == 0.25 and config["waypoint_distance"] == 0.0
+    assert result["policy"] == f"run {run} (greedy)"
+    # the same policy through the lidar collision monitor
+    assert benchmark_main(["--run", str(run), *tiny, "--policy", "shielded"]) == 0
+    assert json.loads(out.read_text())["policy"] == f"run {run} (greedy, shielded)"
     # a policy that reads a waypoint planned on the maze: not map-free, refused
     capsys.readouterr()
     assert benchmark_main(["--run", str(with_waypoint), *tiny]) == 2

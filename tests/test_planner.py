@@ -16,6 +16,7 @@ from conftest import bfs_distances
 import jaxnav
 from jaxnav.deploy import planner
 from jaxnav.deploy.planner import GridMap, Planner
+from jaxnav.envs.robot.geometry import collides
 
 
 def clearance_of_centres(grid: np.ndarray, cell_size: float) -> np.ndarray:
@@ -133,6 +134,11 @@ ENVS = [
     ("RobotNav-v0", {"num_layouts": 4}),  # 32 goal cells per maze, radius 0.15 m, 0.5 m cells
     ("RobotNav-v0", {"num_layouts": 4, "radius_range": (0.1, 0.24), "waypoint_moves": 4}),
     ("RobotComplex-v0", {"backend": "kinematic", "waypoint_distance": 1.5}),  # every cell a goal
+    # 0.5 m and 1 m cells in one bank: a lookahead of 2 cells and of 1, robots past 0.25 m
+    (
+        "RobotNav-v0",
+        {"num_layouts": 4, "families": ("rooms", "jaxnav_coarse"), "radius_range": (0.1, 0.35)},
+    ),
 ]
 
 
@@ -144,7 +150,9 @@ def make(index: int):
     return env, params, waypoint
 
 
-@pytest.mark.parametrize("index", range(len(ENVS)), ids=["generalist", "radius-range", "complex"])
+@pytest.mark.parametrize(
+    "index", range(len(ENVS)), ids=["generalist", "radius-range", "complex", "two-cell-sizes"]
+)
 def test_the_envs_tables_and_waypoints_are_the_host_planners(index):
     """On the env's own mazes, from random points anywhere in free cells: the env's BFS table
     is the host planner's distance field on the grid inflated for the largest robot the maze
@@ -153,11 +161,11 @@ def test_the_envs_tables_and_waypoints_are_the_host_planners(index):
     env, params, waypoint = make(index)
     bank = jax.device_get(params.bank)
     c = env.config
-    rows, cs = bank.grid.shape[1], bank.cell_size
+    rows = bank.grid.shape[1]
     rng = np.random.default_rng(index)
     layout, pose, goal = [], [], []
     for lay in range(bank.num_mazes):
-        grid = np.asarray(bank.grid[lay])
+        grid, cs = np.asarray(bank.grid[lay]), float(bank.cell_size[lay])
         grid_map = GridMap(grid, cs)
         p = Planner(
             grid_map, radius=float(env.plan_radius[lay]), margin=0.0,
@@ -184,7 +192,8 @@ def test_the_envs_tables_and_waypoints_are_the_host_planners(index):
     want = []
     for lay, (x, y, _), g in zip(layout, pose, goal, strict=True):
         p = Planner(
-            GridMap(np.asarray(bank.grid[lay]), cs), radius=float(env.plan_radius[lay]),
+            GridMap(np.asarray(bank.grid[lay]), float(bank.cell_size[lay])),
+            radius=float(env.plan_radius[lay]),
             margin=0.0, waypoint_distance=c.waypoint_distance, moves=c.waypoint_moves,
         )  # fmt: skip
         p.set_goal(g)
@@ -202,6 +211,27 @@ def test_a_radius_range_plans_for_the_largest_robot_each_maze_draws():
     fit = np.asarray(params.bank.fit_radius)
     np.testing.assert_allclose(env.plan_radius, np.minimum(0.24, fit))
     assert env.plan_radius.max() == pytest.approx(0.24)  # mazes of 1 m corridors draw the top
+
+
+def test_a_bank_of_two_cell_sizes_draws_each_robot_under_half_its_mazes_cell():
+    """Radii up to 0.35 m on the 1 m cells, capped under half a cell (0.249 m) on the 0.5 m
+    ones, every episode starting clear of walls."""
+    env, params, _ = make(3)
+    np.testing.assert_array_equal(params.bank.cell_size, [0.5, 1.0, 0.5, 1.0])
+    np.testing.assert_array_equal(params.bank.waypoint_cells, [2, 1, 2, 1])
+    keys = jax.random.split(jax.random.key(3), 400)
+    _, state = jax.vmap(env.reset, in_axes=(0, None))(keys, params)
+    cell = np.asarray(params.bank.cell_size)[np.asarray(state.layout)]
+    radius = np.asarray(state.radius)
+    assert radius[cell == 1.0].max() > 0.3 and radius[cell == 0.5].max() <= 0.249
+    walls = params.bank.walls
+    hits = jax.vmap(
+        lambda s: collides(
+            s.pose[:2], s.radius, walls.center[s.layout], walls.half_size[s.layout],
+            walls.active[s.layout],
+        )
+    )(state)  # fmt: skip
+    assert not np.asarray(hits).any()
 
 
 def test_a_bank_refuses_a_plan_that_blocks_its_placement_cells():

@@ -292,7 +292,8 @@ def test_rollout_invariants(env_id, backend, seed):
     want = np.where(goal, c.goal_reward, np.where(hit, c.collision_reward, step_reward))
     # plus the progress term: whole cells of BFS distance gained (a step crosses at most two
     # cell boundaries, at a corner), times progress_reward x cell size
-    progress = np.asarray(info["reward_progress"]) / (c.progress_reward * params.bank.cell_size)
+    cell = float(params.bank.cell_size[0])
+    progress = np.asarray(info["reward_progress"]) / (c.progress_reward * cell)
     np.testing.assert_allclose(progress, np.round(progress), atol=1e-5)
     assert np.abs(progress).max() <= 2 and np.abs(progress).max() >= 1
     np.testing.assert_allclose(r, want + np.asarray(info["reward_progress"]), rtol=1e-5, atol=1e-5)

@@ -3,6 +3,7 @@ built-in and random mazes, and batching."""
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -330,7 +331,8 @@ def test_stack_walls_and_mazes():
 
     bank = M.stack_mazes(mazes, num_slots)
     fmax = max(len(m.placement_cells()) for m in mazes)
-    assert bank.num_mazes == 6 and bank.size_m == (3.0, 4.0) and bank.cell_size == 0.5
+    assert bank.num_mazes == 6 and bank.size_m == (3.0, 4.0)
+    np.testing.assert_array_equal(bank.cell_size, [0.5] * 6)
     assert bank.free_xy.shape == (6, fmax, 2) and bank.free_xy.dtype == np.float32
     assert bank.free_cells.shape == (6, fmax, 2) and bank.grid.shape == (6, 8, 6)
     assert bank.num_free.dtype == np.int32
@@ -349,6 +351,12 @@ def test_stack_walls_and_mazes():
 
     with pytest.raises(ValueError, match="a bank needs one shape"):
         M.stack_mazes([mazes[0], M.builtin_maze("simple")], 32)
+    # one shape, two cell sizes: each maze keeps its own, the arena is the largest
+    coarse = dataclasses.replace(mazes[0], cell_size=1.0)
+    mixed = M.stack_mazes([mazes[0], coarse], num_slots)
+    np.testing.assert_array_equal(mixed.cell_size, [0.5, 1.0])
+    assert mixed.size_m == (6.0, 8.0)
+    np.testing.assert_allclose(mixed.free_xy[1], 2 * mixed.free_xy[0])
     with pytest.raises(M.MazeFileError, match="^complex:"):
         M.stack_walls([M.builtin_maze("simple"), M.builtin_maze("complex")], 8)
 

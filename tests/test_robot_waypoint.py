@@ -73,7 +73,7 @@ def start_poses(env, params, n: int, seed: int):
     """``(layout, pose, goal)`` arrays of ``n`` episodes: starts anywhere the robot fits in a
     free cell (as far off the centre as its radius allows), random headings."""
     eps = episodes(params, n, seed=seed)
-    cs = params.bank.cell_size
+    cs = float(params.bank.cell_size[0])  # one cell size in these banks
     layout = np.array([e[0] for e in eps], np.int32)
     goal = np.stack([e[2] for e in eps]).astype(np.float32)
     rng = np.random.default_rng(1)
@@ -86,7 +86,7 @@ def start_poses(env, params, n: int, seed: int):
 def bfs_to_goals(bank, layout, pose, goal) -> tuple[list[np.ndarray], np.ndarray]:
     """The reference: each episode's BFS steps to its goal cell on its maze's grid (an
     independent BFS), and the steps from its start."""
-    rows, cs = bank.grid.shape[1], bank.cell_size
+    rows, cs = bank.grid.shape[1], float(bank.cell_size[0])
     ref = [
         bfs_distances(np.asarray(bank.grid[lay]), cell_of(g, rows, cs))
         for lay, g in zip(layout, goal, strict=True)
@@ -105,7 +105,7 @@ def test_following_straight_waypoints_walks_a_shortest_path_to_the_goal(env_id, 
     k = env.waypoint_steps
     bank = jax.device_get(params.bank)
     rows, cols = bank.grid.shape[1:]
-    cs = bank.cell_size
+    cs = float(bank.cell_size[0])
     layout, pose, goal = start_poses(env, params, 48, seed=k)
     ref, steps = bfs_to_goals(bank, layout, pose, goal)
     assert (steps > 0).all()  # reachable, and not from the goal's own cell
@@ -143,7 +143,7 @@ def test_following_diagonal_waypoints_reaches_the_goal_without_cutting_corners(e
     k = env.waypoint_steps
     bank = jax.device_get(params.bank)
     rows, cols = bank.grid.shape[1:]
-    cs = bank.cell_size
+    cs = float(bank.cell_size[0])
     layout, pose, goal = start_poses(env, params, 48, seed=k)
     ref, steps = bfs_to_goals(bank, layout, pose, goal)
     hops = np.zeros(len(layout), int)
@@ -210,7 +210,7 @@ def test_waypoint_is_the_documented_descent_with_its_order_among_equals(env_id, 
     wins), no move to a neighbour only as close as the cell, the goal where the path ends."""
     env, params, waypoint = make(env_id, **dict(overrides + (("waypoint_moves", moves),)))
     bank = jax.device_get(params.bank)
-    rows, cs = bank.grid.shape[1], bank.cell_size
+    rows, cs = bank.grid.shape[1], float(bank.cell_size[0])
     layout, pose, goal = start_poses(env, params, 64, seed=moves)
     ref, _ = bfs_to_goals(bank, layout, pose, goal)
     wp = np.asarray(waypoint(jnp.asarray(pose), jnp.asarray(goal), jnp.asarray(layout), params))
@@ -308,7 +308,7 @@ def test_frame_ends_with_the_waypoints_bearing_and_distance(env_id, overrides, f
                 np.testing.assert_array_equal(newest[:-3], np.asarray(obs0)[: frame - 3])
             obs, s, *_ = step(KEY, s, jnp.int32(LEFT if t else FORWARD), params)
     assert np.isfinite(np.asarray(obs)).all() and (np.abs(np.asarray(obs)) <= 1).all()
-    assert (clipped > 0) == (c.laser_range < env.waypoint_steps * params.bank.cell_size)
+    assert (clipped > 0) == (c.laser_range < env.waypoint_steps * float(params.bank.cell_size[0]))
 
 
 @pytest.mark.parametrize("env_id", ["RobotSimple-v0", "RobotComplex-v0"])
@@ -367,7 +367,7 @@ def test_the_waypoints_lookahead_is_a_distance_in_whole_cells(env_id, cell_size,
         env_id, backend="kinematic", waypoint_distance=distance,
         **(kw if env_id == "RobotMaze-v0" else {}),
     )  # fmt: skip
-    assert params.bank.cell_size == cell_size and env.waypoint_steps == steps
+    assert float(params.bank.cell_size[0]) == cell_size and env.waypoint_steps == steps
 
 
 def test_a_waypoint_beyond_64_cells_of_the_maze_is_refused(tmp_path):

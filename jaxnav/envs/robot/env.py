@@ -64,10 +64,14 @@ leaves a robot of the largest radius an episode can have on that maze (``radius`
 of ``radius_range`` capped at the maze's ``fit_radius``): one table serves every radius drawn
 there, and a smaller robot gets a path the largest passes. The waypoint descends the tables
 as ``planner.descend`` does, the deployment loop's planner (``jaxnav.deploy.navigator``). No
-margin is added here: ``validate`` keeps the robot narrower than a cell, so every free cell's
-centre is half a cell or more from walls and the tables are those of the free cells; a drawn
-radius already keeps ``FIT_MARGIN`` at each maze's narrowest gap, and a margin measured at
-cell centres would close 2-cell corridors that the robot passes with room to spare.
+margin is added here: the robot stays narrower than a cell (``validate``; a drawn radius is
+capped under ``HALF_CELL_FILL`` of each maze's cell), so every free cell's centre is half a
+cell or more from walls and the tables are those of the free cells; a drawn radius already
+keeps ``FIT_MARGIN`` at each maze's narrowest gap, and a margin measured at cell centres would
+close 2-cell corridors that the robot passes with room to spare. Mazes of one bank may have
+cells of different sizes (``generators``' ``jaxnav_coarse``: JaxNav's levels in their 1 m
+cells beside 0.5 m families): each keeps its own, its lookahead in its own cells
+(``MazeBank.waypoint_cells``), so only its coarse mazes draw robots of 0.25 m and more.
 
 Own map (``lidar_map``, metres): the waypoint comes from a planner on a map the robot builds
 from its own lidar and odometry (``lidar_map.py``: returns in a grid in the frame of the start
@@ -106,7 +110,6 @@ the MJX substep check use the fastest possible step (``RobotConfig.max_speed``).
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
 import os
 from typing import Any, ClassVar
@@ -147,6 +150,7 @@ MAX_WAYPOINT_DISTANCE = 10.0  # metres
 # metres a drawn radius leaves each side of a maze's narrowest gap: with turns of 0.2 rad a
 # step, a heading is off a corridor's axis by up to 0.1 rad and drifts 0.1 m in 7 steps
 FIT_MARGIN = 0.1
+HALF_CELL_FILL = 0.498  # a drawn radius stays under this many cells: a free cell's centre holds it
 TRAIL_CELLS = layout.TRAIL_CELLS  # the trail's cells per side (in layout: the metadata has it)
 MAX_WAYPOINT_CELLS = 64  # the lookahead is unrolled, one step per cell
 NUM_LASERS = 7  # the paper's; RobotConfig.num_lasers' default
@@ -448,10 +452,9 @@ class RobotConfig:
                     f"goal_radius={self.goal_radius}: larger than the {maze.name} maze allows "
                     f"({width:g} x {height:g} m)"
                 )
-            if self.max_radius >= maze.cell_size / 2:
-                name = "radius" if self.radius_range is None else "radius_range"
+            if self.radius_range is None and self.radius >= maze.cell_size / 2:
                 raise ValueError(
-                    f"{name}={getattr(self, name)}: the robot must fit in a {maze.cell_size:g} m "
+                    f"radius={self.radius}: the robot must fit in a {maze.cell_size:g} m "
                     f"cell of the {maze.name} maze (radius < {maze.cell_size / 2:g})"
                 )
             if self.waypoint_distance > MAX_WAYPOINT_CELLS * maze.cell_size:
@@ -464,6 +467,15 @@ class RobotConfig:
                     f"speed={self.max_speed:g}, dt={self.dt}: one control step would cross more "
                     f"than {MAX_STEP_CELLS} cells of the {maze.name} maze"
                 )
+        # a drawn radius is capped per maze under half its cell (``fit_radius``): the range's
+        # top must fit the coarsest cells, or every maze would cap it
+        coarsest = max(loaded, key=lambda m: m.cell_size)
+        if self.radius_range is not None and self.max_radius >= coarsest.cell_size / 2:
+            raise ValueError(
+                f"radius_range={self.radius_range}: the robot must fit in a "
+                f"{coarsest.cell_size:g} m cell of the {coarsest.name} maze (radius < "
+                f"{coarsest.cell_size / 2:g})"
+            )
         check_fields(self)
 
     def _validate_randomization(self) -> None:
@@ -517,6 +529,8 @@ class RobotConfig:
             ]
             return mazes.pad_mazes(loaded)
         num = 1 if validate_only else self.num_layouts
+        if validate_only and self.maze == "families":  # one of each: their cells may differ
+            num = min(self.num_layouts, len(generators.check_families(self.families)))
         if self.maze == "random":
             return mazes.random_maze_bank(
                 num,
@@ -608,15 +622,20 @@ FAR_STEPS = jnp.iinfo(jnp.int32).max  # walls, unknown cells and the arena's out
 
 
 def descend(
-    known: jax.Array, start: tuple[jax.Array, jax.Array], num_steps: int, moves: int
+    known: jax.Array,
+    start: tuple[jax.Array, jax.Array],
+    max_steps: int,
+    moves: int,
+    num_steps: jax.Array | None = None,
 ) -> tuple[jax.Array, jax.Array]:
-    """``(row, col)`` ``num_steps`` moves from cell ``start`` down the distances ``known``
-    (int32[rows, cols], ``FAR_STEPS`` where blocked), each to the lowest neighbour below the
-    cell, the first of ``planner.MOVES[:moves]`` among equals; a diagonal only where both
-    cells beside it are open (no cutting a corner)."""
+    """``(row, col)`` ``num_steps`` (at most ``max_steps``; None: ``max_steps``) moves from
+    cell ``start`` down the distances ``known`` (int32[rows, cols], ``FAR_STEPS`` where
+    blocked), each to the lowest neighbour below the cell, the first of
+    ``planner.MOVES[:moves]`` among equals; a diagonal only where both cells beside it are
+    open (no cutting a corner)."""
     padded = jnp.pad(known, 1, constant_values=FAR_STEPS)  # the grid's outside
     row, col = start
-    for _ in range(num_steps):  # a few static steps
+    for i in range(max_steps):  # a few static steps
         # a chain of selects, not an argmin, so that XLA fuses the moves into fewer GPU
         # kernels (on a CPU too the generalist's step is faster: docs/results-history.md)
         lowest, step_row, step_col = known[row, col], 0, 0
@@ -631,6 +650,9 @@ def descend(
             lowest = jnp.where(lower, value, lowest)
             step_row = jnp.where(lower, d_row, step_row)
             step_col = jnp.where(lower, d_col, step_col)
+        if num_steps is not None:  # a maze of coarser cells stops sooner
+            step_row = jnp.where(i < num_steps, step_row, 0)
+            step_col = jnp.where(i < num_steps, step_col, 0)
         row, col = row + step_row, col + step_col
     return row, col
 
@@ -702,27 +724,37 @@ class RobotNav(Environment[RobotState, RobotParams]):
         self.layout_names = tuple(m.name for m in maze_list)
         self.layout_origins = tuple(m.origin for m in maze_list)
         c = self.config
-        cell_size = maze_list[0].cell_size
-        # the largest radius that passes each maze's narrowest gap with FIT_MARGIN to spare
+        cells = np.array([m.cell_size for m in maze_list], np.float32)
+        # the largest radius that passes each maze's narrowest gap with FIT_MARGIN to spare,
+        # and stays under half its cell, so that every free cell's centre holds it
         gaps = np.array([narrowest_gap(m.grid) for m in maze_list], np.float32)
-        fit = np.maximum(gaps * cell_size / 2 - FIT_MARGIN, 0.0)
+        fit = np.maximum(np.minimum(gaps * cells / 2 - FIT_MARGIN, HALF_CELL_FILL * cells), 0.0)
         # the planner's tables are for the largest robot an episode can have on each maze
         # (module docstring, "Planner")
         largest = c.radius if c.radius_range is None else np.minimum(max(c.radius_range), fit)
         self.plan_radius = np.broadcast_to(np.asarray(largest, np.float64), fit.shape)
         plan_grids = np.stack(
             [
-                ~planner.passable(m.grid, cell_size, float(r))
+                ~planner.passable(m.grid, m.cell_size, float(r))
                 for m, r in zip(maze_list, self.plan_radius, strict=True)
             ]
         )
         self._bank = mazes.stack_mazes(
             maze_list, self.num_wall_slots, c.num_goal_cells or None, plan_grids=plan_grids
         )
-        self._bank = self._bank.replace(fit_radius=jnp.asarray(fit, jnp.float32))
+        # the waypoint's lookahead in whole cells of each maze (0: none)
+        lookahead = [planner.waypoint_steps(c.waypoint_distance, m.cell_size) for m in maze_list]
+        self._bank = self._bank.replace(
+            fit_radius=jnp.asarray(fit, jnp.float32),
+            waypoint_cells=jnp.asarray(lookahead, jnp.int32),
+        )
         self.arena = np.asarray(self._bank.size_m, np.float32)
-        # the waypoint's lookahead in whole cells of this maze (0: none)
-        self.waypoint_steps = planner.waypoint_steps(c.waypoint_distance, c.lidar_map or cell_size)
+        # the unrolled lookahead: the bank's longest, or in cells of the robot's own map
+        self.waypoint_steps = (
+            planner.waypoint_steps(c.waypoint_distance, c.lidar_map)
+            if c.lidar_map
+            else max(lookahead)
+        )
         self.angles = c.laser_angles
         # enough sub-steps that one moves less than the thinnest wall's half size
         thinnest = self._bank.walls.min_half_size()
@@ -922,11 +954,10 @@ class RobotNav(Environment[RobotState, RobotParams]):
             points = np.asarray(points, np.float64)
             xy = points[..., :2]
             # the cell holding each point, unclipped: off the arena is off the grid
+            cell = np.asarray(bank.cell_size, np.float64)[np.asarray(layout)]
             with np.errstate(invalid="ignore"):
-                col = np.where(np.isfinite(xy[..., 0]), np.floor(xy[..., 0] / bank.cell_size), -1)
-                row = np.where(
-                    np.isfinite(xy[..., 1]), rows - 1 - np.floor(xy[..., 1] / bank.cell_size), -1
-                )
+                col = np.where(np.isfinite(xy[..., 0]), np.floor(xy[..., 0] / cell), -1)
+                row = np.where(np.isfinite(xy[..., 1]), rows - 1 - np.floor(xy[..., 1] / cell), -1)
             cells = np.stack([row, col], axis=-1).clip(-1, 2**31 - 1).astype(np.int64)
             bad = first_blocked_cell(np.asarray(bank.grid), layout, cells)
             if bad is not None:
@@ -1028,13 +1059,13 @@ class RobotNav(Environment[RobotState, RobotParams]):
         host (``shortest_paths``); -1 where there is none (or it is not positive). No episode
         without a collision reaches the disc on a shorter path, so a path ratio is at least 1."""
         bank = params.bank
-        callback = functools.partial(shortest_paths.shortest_path_lengths, cell_size=bank.cell_size)
         out = jax.ShapeDtypeStruct(state.layout.shape, jnp.float32)
         # unbatched arguments (the bank) get leading axes of size 1 under vmap, not copies
         return jax.pure_callback(
-            callback,
+            shortest_paths.shortest_path_lengths,
             out,
             bank.grid,
+            bank.cell_size,
             state.layout,
             state.pose[..., :2],
             state.goal,
@@ -1092,18 +1123,22 @@ class RobotNav(Environment[RobotState, RobotParams]):
         cells (4-neighbour steps x cell size); -1 where none is known (unreachable, or, in a
         bank with K goal cells per maze, a goal that is none of them)."""
         bank = params.bank
-        row, col = self._cell(pose[:2], bank)
+        row, col = self._cell(pose[:2], layout, bank)
         source, known = self._goal_source(goal, layout, bank)
         # one element, not the goal's whole plane: this runs twice every step
         steps = jnp.where(known, bank.goal_distance[layout, source, row, col], -1)
-        return jnp.where(steps >= 0, steps * bank.cell_size, -1.0)
+        return jnp.where(steps >= 0, steps * bank.cell_size[layout], -1.0)
 
     @staticmethod
-    def _cell(xy: jax.Array, bank: mazes.MazeBank) -> tuple[jax.Array, jax.Array]:
-        """(row, col) of the cell holding point ``xy`` (row 0 at the top), clipped to the grid."""
+    def _cell(
+        xy: jax.Array, layout: jax.Array, bank: mazes.MazeBank
+    ) -> tuple[jax.Array, jax.Array]:
+        """(row, col) of the cell of maze ``layout`` holding point ``xy`` (row 0 at the top),
+        clipped to the grid."""
         rows, cols = bank.grid.shape[1:]
-        col = jnp.clip(jnp.floor(xy[0] / bank.cell_size), 0, cols - 1).astype(jnp.int32)
-        row = rows - 1 - jnp.clip(jnp.floor(xy[1] / bank.cell_size), 0, rows - 1)
+        cell = bank.cell_size[layout]
+        col = jnp.clip(jnp.floor(xy[0] / cell), 0, cols - 1).astype(jnp.int32)
+        row = rows - 1 - jnp.clip(jnp.floor(xy[1] / cell), 0, rows - 1)
         return row.astype(jnp.int32), col
 
     def _goal_source(
@@ -1112,7 +1147,7 @@ class RobotNav(Environment[RobotState, RobotParams]):
         """``(source, known)``: the goal's row of the bank's geodesic table, and whether the
         table has one (with K goal cells per maze, a goal that is none of them has none)."""
         cols = bank.grid.shape[2]
-        goal_row, goal_col = self._cell(goal, bank)
+        goal_row, goal_col = self._cell(goal, layout, bank)
         cell = goal_row * cols + goal_col
         if bank.goal_source is None:
             return cell, jnp.ones((), bool)
@@ -1135,9 +1170,12 @@ class RobotNav(Environment[RobotState, RobotParams]):
         rows = bank.grid.shape[1]
         steps = self._steps_to_goal(goal, layout, bank)
         known = jnp.where(steps >= 0, steps.astype(jnp.int32), FAR_STEPS)
-        start = self._cell(pose[:2], bank)
-        row, col = descend(known, start, self.waypoint_steps, self.config.waypoint_moves)
-        centre = jnp.stack([(col + 0.5), (rows - 0.5 - row)]).astype(jnp.float32) * bank.cell_size
+        start = self._cell(pose[:2], layout, bank)
+        moves = self.config.waypoint_moves
+        num_steps = bank.waypoint_cells[layout]
+        row, col = descend(known, start, self.waypoint_steps, moves, num_steps)
+        centre = jnp.stack([(col + 0.5), (rows - 0.5 - row)]).astype(jnp.float32)
+        centre = centre * bank.cell_size[layout]
         use_goal = (known[row, col] == 0) | (steps[start] < 0)
         return jnp.where(use_goal, goal, centre)
 

@@ -1,8 +1,8 @@
 """Maze families for training a generalist robot: several layout styles on one fine grid.
 
-A bank (``mazes.stack_mazes``) needs one grid shape and cell size, so every family is drawn on
-the same fine grid, by default 20 x 20 cells of 0.5 m (a 10 m arena, the paper's), and scale
-varies inside it: a 1 m corridor is 2 fine cells, a 0.5 m one is 1 cell (the robot's 0.15 m
+A bank (``mazes.stack_mazes``) needs one grid shape, so every family is drawn on the same fine
+grid, by default 20 x 20 cells of 0.5 m (a 10 m arena, the paper's), and scale varies inside
+it: a 1 m corridor is 2 fine cells, a 0.5 m one is 1 cell (the robot's 0.15 m
 radius fits a 0.5 m cell with 0.1 m to spare each side), and about a third of the mazes use
 only a smaller sub-arena (12 to 19 cells a side) with the rest walled off. Walls are 1 fine
 cell (0.5 m) thick or, for the coarse segments, 2.
@@ -23,6 +23,11 @@ Not among the default ``FAMILIES``, for mixed banks (``families=(..., "jaxnav")`
 - ``jaxnav``: a JaxNav level (``jaxnav_levels``) drawn at 2 x 2 fine cells a 1 m cell, 18 x 18
   in the 20 x 20 arena. Unlike ``RobotJaxNav-v0``'s levels, the redraw below can drop a level
   whose filled pockets leave it too small, so heavy fills are a little rarer here.
+- ``jaxnav_coarse``: the same level in cells twice the bank's (``CELL_SCALE``; 1 m, JaxNav's
+  own), 9 x 9 in a 10 x 10 arena, the grid padded with wall cells to the bank's 20 x 20 (a
+  maze of 1 m cells; the padding lies above and right of the level). A robot fits under half a
+  cell (``RobotConfig.validate``), so only these cells admit JaxNav's robot (0.25 m) and larger
+  in a bank with 0.5 m cells.
 
 Every maze goes through ``fill_pockets``: free cells outside the largest connected region
 become walls, so any two free cells are joined and a random start and goal always have a path.
@@ -170,27 +175,35 @@ def _pillars(rng: np.random.Generator, rows: int, cols: int) -> np.ndarray:
     return grid
 
 
-def _jaxnav(rng: np.random.Generator, rows: int, cols: int) -> np.ndarray:
-    """A JaxNav level (``jaxnav_levels``: 9 x 9 cells of 1 m, up to 47 random obstacles) on
-    the fine grid, 2 x 2 fine cells a level cell, at a random place in the arena; the rest is
-    wall."""
-    side = 2 * INTERIOR
-    grid = np.ones((rows, cols), bool)
-    r0, c0 = int(rng.integers(rows - side + 1)), int(rng.integers(cols - side + 1))
-    level = np.kron(drawn_obstacles(rng), np.ones((2, 2), bool))
-    grid[r0 : r0 + side, c0 : c0 + side] = level
-    return grid
+def _jaxnav_level(per_cell: int) -> Generator:
+    """A JaxNav level (``jaxnav_levels``: 9 x 9 cells, up to 47 random obstacles) drawn at
+    ``per_cell`` x ``per_cell`` grid cells a level cell, at a random place in the arena; the
+    rest is wall."""
+
+    def draw(rng: np.random.Generator, rows: int, cols: int) -> np.ndarray:
+        side = per_cell * INTERIOR
+        grid = np.ones((rows, cols), bool)
+        r0, c0 = int(rng.integers(rows - side + 1)), int(rng.integers(cols - side + 1))
+        level = np.kron(drawn_obstacles(rng), np.ones((per_cell, per_cell), bool))
+        grid[r0 : r0 + side, c0 : c0 + side] = level
+        return grid
+
+    return draw
 
 
+# the last two are not among the default FAMILIES: RobotNav-v0's bank stays as it was
 GENERATORS: dict[str, Generator] = {
     "rooms": _rooms,
     "corridors": _corridors,
     "segments": _segments,
     "pillars": _pillars,
-    "jaxnav": _jaxnav,  # not among the default FAMILIES: RobotNav-v0's bank stays as it was
+    "jaxnav": _jaxnav_level(2),
+    "jaxnav_coarse": _jaxnav_level(1),
 }
-# the smallest (sub-)arena a family draws on, in fine cells (default MIN_SUB)
-MIN_SIZE: dict[str, int] = {"jaxnav": 2 * INTERIOR}
+# a family's cells in cells of the bank (default 1): its grid is drawn that much smaller
+CELL_SCALE: dict[str, int] = {"jaxnav_coarse": 2}
+# the smallest (sub-)arena a family draws on, in its own cells (default MIN_SUB)
+MIN_SIZE: dict[str, int] = {"jaxnav": 2 * INTERIOR, "jaxnav_coarse": INTERIOR}
 
 
 def check_families(families: Sequence[str]) -> tuple[str, ...]:
@@ -220,26 +233,37 @@ def family_maze(
 ) -> Maze:
     """Maze ``index`` of seed ``seed``: family ``families[index % len(families)]``, connected
     (pockets filled), with at least ``MIN_FREE_FRACTION`` of its arena free and, with
-    ``num_slots``, walls that fit the slots. Depends only on the arguments."""
+    ``num_slots``, walls that fit the slots; ``rows`` x ``cols`` cells of ``cell_size``, or of
+    the family's ``CELL_SCALE`` times that, padded with walls to ``rows`` x ``cols``. Depends
+    only on the arguments."""
     families = check_families(families)
     check_int("seed", seed, 0)
     check_int("index", index, 0)
     family = families[index % len(families)]
     gen = GENERATORS[family]
+    scale = CELL_SCALE.get(family, 1)
+    own_rows, own_cols = rows // scale, cols // scale
+    smallest = MIN_SIZE.get(family, MIN_SUB)
+    if family in MIN_SIZE and min(own_rows, own_cols) < smallest:  # a level needs its room
+        raise ValueError(
+            f"family_maze: {family} needs {smallest * scale} x {smallest * scale} cells or "
+            f"more; rows={rows}, cols={cols}"
+        )
     rng = np.random.default_rng([_TAG, seed, index])
     for _ in range(max_tries):
-        h, w = rows, cols
-        smallest = MIN_SIZE.get(family, MIN_SUB)
-        if rng.random() < SUB_ARENA_PROB and min(rows, cols) > smallest:
-            h = int(rng.integers(smallest, rows))
-            w = int(rng.integers(smallest, cols))
-        grid = np.ones((rows, cols), bool)
-        r0, c0 = int(rng.integers(rows - h + 1)), int(rng.integers(cols - w + 1))
+        h, w = own_rows, own_cols
+        if rng.random() < SUB_ARENA_PROB and min(own_rows, own_cols) > smallest:
+            h = int(rng.integers(smallest, own_rows))
+            w = int(rng.integers(smallest, own_cols))
+        grid = np.ones((own_rows, own_cols), bool)
+        r0, c0 = int(rng.integers(own_rows - h + 1)), int(rng.integers(own_cols - w + 1))
         grid[r0 : r0 + h, c0 : c0 + w] = gen(rng, h, w)
         grid = fill_pockets(grid)
         if (~grid).sum() < max(2, MIN_FREE_FRACTION * h * w):
             continue
-        maze = Maze(grid, cell_size, name=f"{family}[{seed}:{index}]")
+        # the bank's shape: walls above and right, so the lower-left corner stays the origin
+        grid = np.pad(grid, ((rows - own_rows, 0), (0, cols - own_cols)), constant_values=True)
+        maze = Maze(grid, cell_size * scale, name=f"{family}[{seed}:{index}]")
         if num_slots is None or maze.num_boxes <= num_slots:
             return maze
     raise ValueError(

@@ -111,7 +111,8 @@ class Walls:
 @struct.dataclass
 class MazeBank:
     """A batch of mazes (leading axis B) for per-environment layouts; a reset picks a maze and
-    two placement cells by index. Mazes of one bank share rows, cols and cell size."""
+    two placement cells by index. Mazes of one bank share rows and cols; each has its own cell
+    size (``cell_size``), so a bank can hold coarse mazes beside fine ones."""
 
     walls: Walls  # [B, W]
     free_xy: jax.Array  # float32[B, F, 2] placement-cell centres, padded with the first one
@@ -128,7 +129,7 @@ class MazeBank:
     # can be a goal. That is 2 (rows * cols)^2 bytes a maze, 320 KB at 20 x 20, so large banks
     # of fine grids keep only K goal cells per maze (``stack_mazes(..., num_goals=K)``)
     goal_distance: jax.Array
-    cell_size: float = struct.field(pytree_node=False, default=1.0)
+    cell_size: jax.Array  # float32[B] each maze's cell side (metres)
     # With K goal cells: int32[B, K] indices into free_xy of the goal cells (source k of
     # goal_distance), and int32[B, rows * cols] the source of each flattened cell, -1 where the
     # cell is no goal cell; None for the full table
@@ -137,6 +138,8 @@ class MazeBank:
     # float32[B] the largest robot radius that passes each maze's narrowest gap (the env sets
     # it: a radius drawn per episode is capped there); None: not computed
     fit_radius: jax.Array | None = None
+    # int32[B] the waypoint's lookahead in cells of each maze (the env sets it); None: none
+    waypoint_cells: jax.Array | None = None
 
     @property
     def num_mazes(self) -> int:
@@ -144,9 +147,10 @@ class MazeBank:
 
     @property
     def size_m(self) -> tuple[float, float]:
-        """Arena (width, height) in metres."""
+        """Arena (width, height) in metres: the largest maze's, where cell sizes differ."""
         rows, cols = self.grid.shape[1:]
-        return cols * self.cell_size, rows * self.cell_size
+        cell = float(np.max(np.asarray(self.cell_size)))
+        return cols * cell, rows * cell
 
 
 # ------------------------------------------------------------------------------- maze
@@ -726,9 +730,9 @@ def stack_mazes(
     num_goals: int | None = None,
     plan_grids: np.ndarray | None = None,
 ) -> MazeBank:
-    """A ``MazeBank`` of mazes that share rows, cols and cell size: walls, placement-cell
-    centres padded to the bank's largest count (with the maze's first cell, so any index
-    below the padded size is a valid cell) and the S/G cells.
+    """A ``MazeBank`` of mazes that share rows and cols (cell sizes may differ): walls,
+    placement-cell centres padded to the bank's largest count (with the maze's first cell, so
+    any index below the padded size is a valid cell) and the S/G cells.
 
     ``plan_grids`` (bool[B, rows, cols], True = blocked; None: the mazes' grids): the cells the
     geodesic tables route around, the walls and the free cells a robot's centre cannot stand
@@ -745,10 +749,10 @@ def stack_mazes(
         raise ValueError("stack_mazes: no mazes")
     m0 = mazes[0]
     for m in mazes[1:]:
-        if m.grid.shape != m0.grid.shape or m.cell_size != m0.cell_size:
+        if m.grid.shape != m0.grid.shape:
             raise ValueError(
-                f"stack_mazes: {m.name} is {m.rows}x{m.cols} at {m.cell_size} m, but {m0.name} "
-                f"is {m0.rows}x{m0.cols} at {m0.cell_size} m; a bank needs one shape"
+                f"stack_mazes: {m.name} is {m.rows}x{m.cols} cells, but {m0.name} is "
+                f"{m0.rows}x{m0.cols}; a bank needs one shape"
             )
     placement = [m.placement_cells() for m in mazes]
     fmax = max(len(p) for p in placement)
@@ -800,7 +804,7 @@ def stack_mazes(
         goal_xy=jnp.asarray(goal_xy),
         has_goal=jnp.asarray(has_goal),
         goal_distance=goal_distance,
-        cell_size=m0.cell_size,
+        cell_size=jnp.asarray([m.cell_size for m in mazes], jnp.float32),
         goal_index=goal_index,
         goal_source=goal_source,
     )

@@ -191,18 +191,20 @@ def disc_distance(
 
 def shortest_path_lengths(
     grids: np.ndarray,
+    cell_size: np.ndarray,
     layout: np.ndarray,
     start: np.ndarray,
     goal: np.ndarray,
     goal_radius: np.ndarray,
-    cell_size: float,
 ) -> np.ndarray:
-    """float32[...]: ``disc_distances`` of each episode (``grids`` bool[B, rows, cols], a bank;
-    ``layout``, ``start[..., 2]``, ``goal[..., 2]`` and ``goal_radius`` broadcast over the
-    leading axes), -1 where there is no path or it is not positive (the start in the disc).
-    ``grids`` may carry leading axes of size 1 (a host callback's unbatched argument)."""
+    """float32[...]: ``disc_distances`` of each episode (``grids`` bool[B, rows, cols] and
+    ``cell_size`` float[B], a bank; ``layout``, ``start[..., 2]``, ``goal[..., 2]`` and
+    ``goal_radius`` broadcast over the leading axes), -1 where there is no path or it is not
+    positive (the start in the disc). ``grids`` and ``cell_size`` may carry leading axes of
+    size 1 (a host callback's unbatched arguments)."""
     grids = np.asarray(grids, bool)
     grids = grids.reshape(grids.shape[-3:])
+    cell_size = np.asarray(cell_size, np.float64).reshape(grids.shape[:1])
     layout = np.asarray(layout)
     start, goal = np.asarray(start)[..., :2], np.asarray(goal)[..., :2]
     radius = np.asarray(goal_radius, np.float64)
@@ -218,6 +220,7 @@ def shortest_path_lengths(
     for g in np.unique(group):
         idx = np.flatnonzero(group.ravel() == g)
         i = idx[0]
-        out[idx] = disc_distances(grids[layout[i]], cell_size, start[idx], goal[i], radius[i])
+        cell = float(cell_size[layout[i]])
+        out[idx] = disc_distances(grids[layout[i]], cell, start[idx], goal[i], radius[i])
     good = np.isfinite(out) & (out > 0)
     return np.where(good, out, -1.0).astype(np.float32).reshape(shape)
