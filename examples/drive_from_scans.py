@@ -108,7 +108,7 @@ def record(
         angle_increment=increment,
         range_max=range_max,
         grids=np.asarray(params.bank.grid),  # the maps: every maze of the bank
-        cell_size=params.bank.cell_size,
+        cell_size=np.asarray(params.bank.cell_size),  # each maze's
         origins=np.asarray(env.layout_origins, np.float64),
     )
     steps = len(rows["start"])
@@ -132,7 +132,8 @@ def drive(policy_path: Path, log: Path, quiet: bool = False) -> float:
         layout = int(data["layout"][t])
         origin = data["origins"][layout]
         if data["start"][t]:  # a new maze, robot and goal; the map frame is env + origin
-            grid_map = GridMap(data["grids"][layout], float(data["cell_size"]), tuple(origin))
+            cell = float(data["cell_size"][layout])
+            grid_map = GridMap(data["grids"][layout], cell, tuple(origin))
             nav = Navigator(policy, map=grid_map, radius=float(data["radius"][t]))
             nav.reset(goal=data["goal"][t] + origin)
         scan = LaserScan(
