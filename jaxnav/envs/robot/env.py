@@ -749,11 +749,13 @@ class RobotNav(Environment[RobotState, RobotParams]):
             waypoint_cells=jnp.asarray(lookahead, jnp.int32),
         )
         self.arena = np.asarray(self._bank.size_m, np.float32)
-        # the unrolled lookahead: the bank's longest, or in cells of the robot's own map
+        # the lookahead unrolled on the mazes' tables (the bank's longest), and on the
+        # observation's: the robot's own map's where it has one (0: no waypoint)
+        self.maze_lookahead = max(lookahead)
         self.waypoint_steps = (
             planner.waypoint_steps(c.waypoint_distance, c.lidar_map)
             if c.lidar_map
-            else max(lookahead)
+            else self.maze_lookahead
         )
         self.angles = c.laser_angles
         # enough sub-steps that one moves less than the thinnest wall's half size
@@ -1173,7 +1175,7 @@ class RobotNav(Environment[RobotState, RobotParams]):
         start = self._cell(pose[:2], layout, bank)
         moves = self.config.waypoint_moves
         num_steps = bank.waypoint_cells[layout]
-        row, col = descend(known, start, self.waypoint_steps, moves, num_steps)
+        row, col = descend(known, start, self.maze_lookahead, moves, num_steps)
         centre = jnp.stack([(col + 0.5), (rows - 0.5 - row)]).astype(jnp.float32)
         centre = centre * bank.cell_size[layout]
         use_goal = (known[row, col] == 0) | (steps[start] < 0)
