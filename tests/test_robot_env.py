@@ -562,10 +562,11 @@ def test_map_free_odometry_fields_read_the_goal_far_the_last_action_and_the_radi
 
 @pytest.mark.slow  # builds the generalist's whole maze bank
 def test_a_drawn_radius_fits_the_mazes_narrowest_gap():
-    """radius_range is capped per maze at half its narrowest gap less FIT_MARGIN: 0.5 m
-    corridors hold robots up to 0.15 m, JaxNav levels' 1 m gaps up to the range's top."""
+    """radius_range is capped per maze at half its narrowest gap less FIT_MARGIN and under
+    half a cell: 0.5 m corridors hold robots up to 0.15 m, JaxNav levels' 1 m gaps in 0.5 m
+    cells up to 0.249 m, so the range's top."""
     from jaxnav.envs.maze_algorithms import narrowest_gap
-    from jaxnav.envs.robot.env import FIT_MARGIN
+    from jaxnav.envs.robot.env import FIT_MARGIN, HALF_CELL_FILL
 
     grid = np.zeros((5, 6), bool)
     grid[2, :4] = True  # a wall with a 2-cell gap at the right edge
@@ -578,8 +579,9 @@ def test_a_drawn_radius_fits_the_mazes_narrowest_gap():
     )
     fit = np.asarray(params.bank.fit_radius)
     gaps = [narrowest_gap(np.asarray(g)) for g in params.bank.grid]
-    np.testing.assert_allclose(fit, np.array(gaps) * 0.5 / 2 - FIT_MARGIN, atol=1e-6)
-    assert fit[1::2].min() >= 0.4 - 1e-6  # jaxnav levels: 2 fine cells = 1 m at least
+    want = np.minimum(np.array(gaps) * 0.5 / 2 - FIT_MARGIN, HALF_CELL_FILL * 0.5)
+    np.testing.assert_allclose(fit, want, atol=1e-6)
+    assert fit[1::2].min() >= 0.249 - 1e-6  # jaxnav levels: 2 fine cells = 1 m at least
     keys = jax.random.split(KEY, 256)
     _, s = jax.vmap(env.reset, in_axes=(0, None))(keys, params)
     radius, layout = np.asarray(s.radius), np.asarray(s.layout)
