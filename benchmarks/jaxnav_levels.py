@@ -63,7 +63,8 @@ PUBLISHED = {
     "PLR": (0.967, 0.68),
     "ACCEL": (0.959, 0.59),
 }
-GREEDY = {"trained": "greedy", "shielded": "greedy, shielded"}
+# how --policy is named in the tables
+POLICY_LABEL = {"trained": "greedy", "shielded": "greedy, shielded"}
 COLUMNS = ("success_rate", "cvar_10", "cvar_1", "collision_rate", "timeout_rate")
 
 
@@ -161,8 +162,8 @@ def policy_name(args: argparse.Namespace) -> str:
     if args.random:
         return "the random agent"
     if args.pretrained is not None:
-        return f"policy {args.pretrained} ({GREEDY[args.policy]})"
-    return f"run {args.run} ({GREEDY[args.policy]})"
+        return f"policy {args.pretrained} ({POLICY_LABEL[args.policy]})"
+    return f"run {args.run} ({POLICY_LABEL[args.policy]})"
 
 
 def chunk_program(
